@@ -1,0 +1,9 @@
+"""The one error type for bad user input (a malformed case file, an unknown engine, a NaN).
+
+The CLI reports an `InputError` as one line naming what is wrong and what was expected, with
+exit status 2 and no traceback.
+"""
+
+
+class InputError(ValueError):
+    """Bad input from the user; the message names the file or option, the key and the expectation."""

@@ -1,0 +1,198 @@
+"""The engine-neutral scene: bodies as particle clusters, gravity, planes, contact, duration, dt.
+
+Every engine builds its model from a `Scene` and nothing else. Scenes are frozen pydantic
+dataclasses, so a scene built in Python and a scene loaded from TOML pass the same validation.
+Units are SI; positions are world coordinates at t = 0.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import cached_property
+from typing import Annotated
+
+import numpy as np
+from pydantic import ConfigDict, Field
+from pydantic.dataclasses import dataclass
+
+from reference_sim.inertia import center_of_mass, inertia_tensor
+
+# Strict: a string or a boolean is not a number; NaN and inf are rejected everywhere.
+Num = Annotated[float, Field(strict=True, allow_inf_nan=False)]
+PositiveNum = Annotated[Num, Field(gt=0)]
+Vec3 = tuple[Num, Num, Num]
+Particle = tuple[Num, Num, Num, PositiveNum]  # x, y, z, mass
+Name = Annotated[str, Field(strict=True, pattern=r"^[A-Za-z0-9_.-]+$")]
+
+_CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+# A body whose smallest principal moment is below this fraction of its largest has a singular
+# inertia tensor: collinear particles give exactly 0 up to rounding (about 1e-16 relative).
+SINGULAR_INERTIA_RATIO = 1e-12
+# A plane normal shorter than this cannot be normalised meaningfully.
+MIN_NORMAL_LENGTH = 1e-12
+
+ZERO3 = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True, config=_CONFIG)
+class Contact:
+    """Contact parameters shared by every particle pair and particle-plane pair.
+
+    Attributes:
+      restitution: coefficient e in [0, 1], ratio of separating to approaching normal speed.
+      friction: Coulomb coefficient mu >= 0.
+    """
+
+    restitution: Annotated[Num, Field(ge=0, le=1)]
+    friction: Annotated[Num, Field(ge=0)]
+
+
+@dataclass(frozen=True, config=_CONFIG)
+class Plane:
+    """A static half-space boundary: `point` on the plane, `normal` pointing into the free side."""
+
+    point: Vec3
+    normal: Vec3
+
+    def __post_init__(self):
+        if math.hypot(*self.normal) < MIN_NORMAL_LENGTH:
+            raise ValueError(f"plane normal {list(self.normal)} is zero: expected a non-zero vector")
+
+    @property
+    def unit_normal(self) -> np.ndarray:
+        n = np.asarray(self.normal, dtype=float)
+        return n / np.linalg.norm(n)
+
+
+@dataclass(frozen=True, config=_CONFIG)
+class Body:
+    """A rigid cluster of point-mass particles.
+
+    Attributes:
+      particles: (n, 4) rows x, y, z, mass: world positions at t = 0 (m) and masses (kg).
+      particle_radius: collision radius of every particle (m); adds no inertia.
+      velocity: (3,) initial centre-of-mass velocity, world frame (m/s).
+      angular_velocity: (3,) initial angular velocity, world frame (rad/s).
+    """
+
+    name: Name
+    particle_radius: PositiveNum
+    particles: Annotated[tuple[Particle, ...], Field(min_length=1)]
+    velocity: Vec3 = ZERO3
+    angular_velocity: Vec3 = ZERO3
+
+    def __post_init__(self):
+        moments = np.linalg.eigvalsh(self.inertia)
+        if moments[-1] <= 0 or moments[0] < SINGULAR_INERTIA_RATIO * moments[-1]:
+            raise ValueError(
+                f"body {self.name!r}: its {len(self.particles)} particle(s) are all collinear, "
+                f"so the inertia tensor is singular (principal moments {moments.round(12).tolist()}) "
+                "and omega = I^-1 L is undefined: expected at least three non-collinear particles"
+            )
+
+    @cached_property
+    def positions(self) -> np.ndarray:
+        """(n, 3) particle positions at t = 0."""
+        return np.array([p[:3] for p in self.particles], dtype=float)
+
+    @cached_property
+    def masses(self) -> np.ndarray:
+        """(n,) particle masses."""
+        return np.array([p[3] for p in self.particles], dtype=float)
+
+    @property
+    def mass(self) -> float:
+        return float(self.masses.sum())
+
+    @cached_property
+    def com(self) -> np.ndarray:
+        """(3,) centre of mass at t = 0."""
+        return center_of_mass(self.positions, self.masses)
+
+    @cached_property
+    def inertia(self) -> np.ndarray:
+        """(3, 3) inertia tensor about the COM in world axes at t = 0 (the body frame)."""
+        return inertia_tensor(self.positions - self.com, self.masses)
+
+
+@dataclass(frozen=True, config=_CONFIG)
+class Expected:
+    """What physics predicts for a scene beyond what `cases.exact` derives from it.
+
+    Attributes:
+      rest_com_height: distance (m) of the resting body's COM from the plane it ends on
+        (the plane whose normal points most against gravity).
+    """
+
+    rest_com_height: PositiveNum | None = None
+
+
+@dataclass(frozen=True, config=_CONFIG)
+class Scene:
+    """One engine-neutral case.
+
+    Attributes:
+      duration: simulated time (s); dt: default step (s).
+      sample_interval: time between output samples (s); None samples every step.
+      gravity: (3,) uniform gravitational acceleration (m/s^2).
+      contact: contact parameters, or None: no contact of any kind is modelled.
+      planes: static planes; they only act when `contact` is given.
+    """
+
+    name: Name
+    duration: PositiveNum
+    dt: PositiveNum
+    gravity: Vec3
+    bodies: Annotated[tuple[Body, ...], Field(min_length=1)]
+    description: str = ""
+    tags: tuple[Name, ...] = ()
+    sample_interval: PositiveNum | None = None
+    contact: Contact | None = None
+    planes: tuple[Plane, ...] = ()
+    expected: Expected | None = None
+
+    def __post_init__(self):
+        if self.dt > self.duration:
+            raise ValueError(f"dt {self.dt} is longer than duration {self.duration}")
+        if self.planes and self.contact is None:
+            raise ValueError(
+                "planes are given but [contact] is absent, so they would have no effect: "
+                "expected a [contact] table (restitution, friction) or no planes"
+            )
+        names = [b.name for b in self.bodies]
+        if len(set(names)) != len(names):
+            raise ValueError(f"body names must be unique, got {names}")
+
+    @property
+    def has_contact(self) -> bool:
+        """True when the scene has something to collide with: planes or a second body."""
+        return self.contact is not None and (bool(self.planes) or len(self.bodies) > 1)
+
+    @property
+    def has_gravity(self) -> bool:
+        return any(g != 0.0 for g in self.gravity)
+
+    def sample_stride(self, dt: float) -> int:
+        """Steps between output samples when stepping with `dt`."""
+        if self.sample_interval is None:
+            return 1
+        return max(1, round(self.sample_interval / dt))
+
+    def steps(self, dt: float, duration: float | None = None) -> int:
+        """Number of steps of size `dt` covering `duration` (default: the scene's)."""
+        return max(1, round((self.duration if duration is None else duration) / dt))
+
+    def modelled(self) -> str:
+        """One line saying what an engine has to model for this scene."""
+        parts = [f"{len(self.bodies)} bod{'y' if len(self.bodies) == 1 else 'ies'}"]
+        parts.append(f"{sum(len(b.particles) for b in self.bodies)} particles")
+        parts.append("gravity" if self.has_gravity else "no gravity")
+        if self.has_contact:
+            c = self.contact
+            parts.append(
+                f"{len(self.planes)} plane(s), contact e={c.restitution:g} mu={c.friction:g}"
+            )
+        else:
+            parts.append("no contact")
+        return ", ".join(parts)

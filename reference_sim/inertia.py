@@ -1,0 +1,31 @@
+"""Mass properties of a particle cluster, as in the seed: I = sum m (r.r 1 - r r^T).
+
+A particle's own sphere adds no inertia. Functions are numba-compiled and also callable from
+Python with numpy arrays.
+"""
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def center_of_mass(positions, masses):
+    """(3,) mass-weighted mean of `positions` (n, 3) with `masses` (n,)."""
+    c = np.zeros(3)
+    for i in range(positions.shape[0]):
+        c += masses[i] * positions[i]
+    return c / masses.sum()
+
+
+@njit(cache=True)
+def inertia_tensor(offsets, masses):
+    """(3, 3) inertia tensor of point masses at `offsets` (n, 3) from the reference point."""
+    inertia = np.zeros((3, 3))
+    for i in range(offsets.shape[0]):
+        r = offsets[i]
+        r2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
+        for a in range(3):
+            inertia[a, a] += masses[i] * r2
+            for b in range(3):
+                inertia[a, b] -= masses[i] * r[a] * r[b]
+    return inertia

@@ -1,0 +1,107 @@
+"""Unit quaternions, scalar first (w, x, y, z), and rotation helpers.
+
+Single-quaternion functions are numba-compiled (used inside the step loops); the batch
+functions (plural names) loop over (n, 4) arrays with the same kernels.
+"""
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def quat_multiply(p, q):
+    """Hamilton product p q: the rotation q followed by p."""
+    return np.array(
+        [
+            p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3],
+            p[0] * q[1] + p[1] * q[0] + p[2] * q[3] - p[3] * q[2],
+            p[0] * q[2] - p[1] * q[3] + p[2] * q[0] + p[3] * q[1],
+            p[0] * q[3] + p[1] * q[2] - p[2] * q[1] + p[3] * q[0],
+        ]
+    )
+
+
+@njit(cache=True)
+def quat_conjugate(q):
+    return np.array([q[0], -q[1], -q[2], -q[3]])
+
+
+@njit(cache=True)
+def quat_normalize(q):
+    return q / np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+
+
+@njit(cache=True)
+def quat_from_rotvec(v):
+    """Exponential map: the rotation by angle |v| about v / |v|."""
+    angle = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    half = 0.5 * angle
+    # sin(half)/angle, with its Taylor series where the division would lose precision
+    if angle < 1e-4:
+        s = 0.5 - angle * angle / 48.0
+    else:
+        s = np.sin(half) / angle
+    return np.array([np.cos(half), s * v[0], s * v[1], s * v[2]])
+
+
+@njit(cache=True)
+def quat_to_matrix(q):
+    """(3, 3) rotation matrix of the unit quaternion q."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+@njit(cache=True)
+def quat_from_matrix(m):
+    """Unit quaternion (w >= 0) of the rotation matrix m, by Shepperd's stable method."""
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    q = np.empty(4)
+    if tr >= m[0, 0] and tr >= m[1, 1] and tr >= m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + tr)
+        q[:] = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+    elif m[0, 0] >= m[1, 1] and m[0, 0] >= m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q[:] = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
+    elif m[1, 1] >= m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q[:] = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
+    else:
+        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q[:] = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
+    if q[0] < 0:
+        q = -q
+    return quat_normalize(q)
+
+
+@njit(cache=True)
+def quat_angle_between(p, q):
+    """Geodesic angle (rad) of p^-1 q, in [0, pi]; q and -q count as the same rotation.
+
+    2 atan2(|vector part|, |scalar part|) keeps full precision near zero, where acos does not.
+    """
+    d = quat_multiply(quat_conjugate(p), q)
+    return 2.0 * np.arctan2(np.sqrt(d[1] * d[1] + d[2] * d[2] + d[3] * d[3]), abs(d[0]))
+
+
+@njit(cache=True)
+def quats_to_matrices(qs):
+    """(n, 3, 3) rotation matrices of (n, 4) quaternions."""
+    out = np.empty((qs.shape[0], 3, 3))
+    for i in range(qs.shape[0]):
+        out[i] = quat_to_matrix(qs[i])
+    return out
+
+
+@njit(cache=True)
+def quats_angle_between(ps, qs):
+    """(n,) geodesic angles (rad) between (n, 4) quaternion arrays."""
+    out = np.empty(ps.shape[0])
+    for i in range(ps.shape[0]):
+        out[i] = quat_angle_between(ps[i], qs[i])
+    return out
