@@ -1,0 +1,166 @@
+"""The seed's algorithm, kept faithfully with its quirks: the baseline whose drift the suite measures.
+
+One step, in the blog's order (simulate_step!):
+1. particle-particle collisions (calculate_colisions!) over all pairs: overlapping particles are
+   pushed apart by mass ratio and get the blog's restitution impulse. Unlike the rigid
+   integrators, the seed pairs particles of the same body too, as the blog does: its body
+   deforms, and on `seed_cube` same-body pairs do collide once the cube has flattened on the
+   floor (from step 379 on), so skipping them would change the blog's result.
+2. rigid bodies (update_rigidbody!): L = sum m (p - cm) x v_p; omega = I^-1 L with I from the
+   current particles; V += g dt; cm += V dt; r += (omega x r) dt, which stretches every r by
+   sqrt(1 + |omega x r|^2 dt^2 / |r|^2) (the body inflates); v_p = V + omega x r.
+3. walls (apply_boundary_conditions_rigidbodies!): a particle closer to a plane than its radius
+   is clamped to it, the cm is not moved, and V's normal component becomes -e times itself; the
+   blog's upper walls (normals along a negative axis) apply that twice. Particle velocities are
+   then V + omega x (p - cm).
+
+Friction is not part of the seed and is ignored. The seed's gravity is the scene's.
+"""
+
+import numpy as np
+from numba import njit
+
+from reference_sim.inertia import inertia_tensor
+from reference_sim.quaternion import quat_from_matrix
+
+
+@njit(cache=True)
+def _collide_particles(model, pos, vel):
+    e = model.restitution
+    n = pos.shape[0]
+    for i in range(n):
+        for j in range(i + 1, n):
+            d = pos[i] - pos[j]
+            r = np.sqrt(np.dot(d, d))
+            reach = model.radius[i] + model.radius[j]
+            if r < reach and r >= 0.0001:
+                m1, m2 = model.particle_mass[i], model.particle_mass[j]
+                normal = d / r
+                overlap = reach - r
+                pos[i] += overlap * normal * (m2 / (m1 + m2))
+                pos[j] -= overlap * normal * (m1 / (m1 + m2))
+                # the blog uses the corrected positions and the radius sum for |x1 - x2|
+                d = pos[i] - pos[j]
+                dv1 = -(1 + e) * m2 / (m1 + m2) * np.dot(vel[i] - vel[j], d) * d / reach**2
+                dv2 = -(1 + e) * m1 / (m1 + m2) * np.dot(vel[j] - vel[i], -d) * (-d) / reach**2
+                vel[i] += dv1
+                vel[j] += dv2
+
+
+@njit(cache=True)
+def _update_bodies(model, pos, vel, cm, V, omega, dt):
+    for b in range(cm.shape[0]):
+        lo, hi = model.body_start[b], model.body_start[b + 1]
+        cm_old = cm[b].copy()
+        L = np.zeros(3)
+        for i in range(lo, hi):
+            L += model.particle_mass[i] * np.cross(pos[i] - cm_old, vel[i])
+        inertia = inertia_tensor(pos[lo:hi] - cm[b], model.particle_mass[lo:hi])
+        omega[b] = np.linalg.inv(inertia) @ L
+        if model.gravity_on:
+            V[b] += model.gravity * dt
+        cm[b] += V[b] * dt
+        for i in range(lo, hi):
+            r = pos[i] - cm_old
+            r += np.cross(omega[b], r) * dt
+            pos[i] = cm[b] + r
+            vel[i] = V[b] + np.cross(omega[b], r)
+
+
+@njit(cache=True)
+def _apply_walls(model, pos, vel, cm, V, omega):
+    e = model.restitution
+    for b in range(cm.shape[0]):
+        lo, hi = model.body_start[b], model.body_start[b + 1]
+        for i in range(lo, hi):
+            for k in range(model.plane_points.shape[0]):
+                n = model.plane_normals[k]
+                s = np.dot(n, pos[i] - model.plane_points[k])
+                if s < model.radius[i]:
+                    pos[i] += (model.radius[i] - s) * n
+                    upper = n[np.argmax(np.abs(n))] < 0
+                    for _ in range(2 if upper else 1):
+                        V[b] -= (1 + e) * np.dot(V[b], n) * n
+        for i in range(lo, hi):
+            vel[i] = V[b] + np.cross(omega[b], pos[i] - cm[b])
+
+
+@njit(cache=True)
+def seed_step(model, pos, vel, cm, V, omega, dt):
+    """One step of the blog's simulate_step!, in place."""
+    if model.contact:
+        _collide_particles(model, pos, vel)
+    _update_bodies(model, pos, vel, cm, V, omega, dt)
+    if model.contact:
+        _apply_walls(model, pos, vel, cm, V, omega)
+
+
+@njit(cache=True)
+def best_fit_rotation(reference, current, masses):
+    """Rotation matrix R minimising sum m |R reference_i - current_i|^2 (Kabsch); both centred."""
+    h = np.zeros((3, 3))
+    for i in range(reference.shape[0]):
+        h += masses[i] * np.outer(reference[i], current[i])
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(vt.T @ u.T))
+    fix = np.eye(3)
+    fix[2, 2] = d if d != 0 else 1.0
+    return vt.T @ fix @ u.T
+
+
+@njit(cache=True)
+def _record(model, pos, vel, out, shape_error):
+    """Body observables of the deforming particle cluster.
+
+    x, v: mass-weighted means of particle positions and velocities; q: best-fit rotation of the
+    particles from their t = 0 offsets; omega: I_rigid(q)^-1 L with L the particles' angular
+    momentum about their mean, so the suite's L is exactly the particles' L; shape_error: the
+    largest relative change of an inter-particle distance.
+    """
+    for b in range(out.shape[0]):
+        lo, hi = model.body_start[b], model.body_start[b + 1]
+        m = model.particle_mass[lo:hi]
+        mass = m.sum()
+        x = np.zeros(3)
+        v = np.zeros(3)
+        for i in range(lo, hi):
+            x += m[i - lo] * pos[i]
+            v += m[i - lo] * vel[i]
+        x /= mass
+        v /= mass
+        rel = pos[lo:hi] - x
+        L = np.zeros(3)
+        for i in range(lo, hi):
+            L += m[i - lo] * np.cross(rel[i - lo], vel[i] - v)
+        rot = best_fit_rotation(model.offsets[lo:hi], rel, m)
+        out[b, 0:3] = x
+        out[b, 3:7] = quat_from_matrix(rot)
+        out[b, 7:10] = v
+        out[b, 10:13] = rot @ (model.inertia0_inv[b] @ (rot.T @ L))
+        worst = 0.0
+        for i in range(lo, hi):
+            for j in range(i + 1, hi):
+                d0 = model.offsets[i] - model.offsets[j]
+                d = pos[i] - pos[j]
+                worst = max(worst, abs(np.sqrt(np.dot(d, d) / np.dot(d0, d0)) - 1.0))
+        shape_error[b] = worst
+
+
+@njit(cache=True)
+def run_seed(model, pos, vel, cm, V, omega, dt, n_steps, stride):
+    """Step n_steps times in place; return (steps, samples (S, B, 13), shape_error (S, B))."""
+    nb = cm.shape[0]
+    n_samples = n_steps // stride + 1 + (1 if n_steps % stride else 0)
+    out = np.empty((n_samples, nb, 13))
+    shape = np.empty((n_samples, nb))
+    steps = np.empty(n_samples, dtype=np.int64)
+    _record(model, pos, vel, out[0], shape[0])
+    steps[0] = 0
+    s = 1
+    for n in range(1, n_steps + 1):
+        seed_step(model, pos, vel, cm, V, omega, dt)
+        if n % stride == 0 or n == n_steps:
+            _record(model, pos, vel, out[s], shape[s])
+            steps[s] = n
+            s += 1
+    return steps, out, shape
