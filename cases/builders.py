@@ -15,7 +15,16 @@ Rows = tuple[tuple[float, float, float, float], ...]
 
 def seed_cube(offset=(0.0, 0.0, 0.0), mass: float = 1.0) -> Rows:
     """The seed's 8 particles at the corners of the unit cube [0, 1]^3 shifted by `offset`."""
-    corners = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)]
+    corners = [
+        (0, 0, 0),
+        (1, 0, 0),
+        (1, 1, 0),
+        (0, 1, 0),
+        (0, 0, 1),
+        (1, 0, 1),
+        (1, 1, 1),
+        (0, 1, 1),
+    ]
     return tuple(
         (float(offset[0] + c[0]), float(offset[1] + c[1]), float(offset[2] + c[2]), float(mass))
         for c in corners

@@ -26,7 +26,7 @@ def register(build: Callable[[], Scene]) -> Callable[[], Scene]:
 def seed_cube() -> Scene:
     return Scene(
         name="seed_cube",
-        description="The blog's scene: a unit cube of 8 particles thrown down and spinning in a 10 m box.",
+        description="The blog's scene: a unit cube of 8 particles thrown spinning into a 10 m box.",
         tags=("seed", "contact", "gravity"),
         duration=100.0,
         dt=0.01,

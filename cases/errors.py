@@ -6,4 +6,4 @@ exit status 2 and no traceback.
 
 
 class InputError(ValueError):
-    """Bad input from the user; the message names the file or option, the key and the expectation."""
+    """Bad user input; the message names the file or option, the key and what was expected."""

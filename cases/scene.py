@@ -57,7 +57,9 @@ class Plane:
 
     def __post_init__(self):
         if math.hypot(*self.normal) < MIN_NORMAL_LENGTH:
-            raise ValueError(f"plane normal {list(self.normal)} is zero: expected a non-zero vector")
+            raise ValueError(
+                f"plane normal {list(self.normal)} is zero: expected a non-zero vector"
+            )
 
     @property
     def unit_normal(self) -> np.ndarray:
@@ -87,7 +89,8 @@ class Body:
         if moments[-1] <= 0 or moments[0] < SINGULAR_INERTIA_RATIO * moments[-1]:
             raise ValueError(
                 f"body {self.name!r}: its {len(self.particles)} particle(s) are all collinear, "
-                f"so the inertia tensor is singular (principal moments {moments.round(12).tolist()}) "
+                "so the inertia tensor is singular "
+                f"(principal moments {moments.round(12).tolist()}) "
                 "and omega = I^-1 L is undefined: expected at least three non-collinear particles"
             )
 

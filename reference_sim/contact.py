@@ -130,7 +130,7 @@ def _project_positions(model, x, q, cands):
     on its face) end exactly touching instead of being over-pushed one after another.
     """
     acc = np.zeros(cands.shape[0])
-    for _ in range(MAX_ITERATIONS):
+    for it in range(MAX_ITERATIONS):
         moved = 0.0
         for k in range(cands.shape[0]):
             c = cands[k]
@@ -148,7 +148,8 @@ def _project_positions(model, x, q, cands):
                 _move_apart(model, x, q, inv_a, inv_b, a, b, ra, rb, dl * n)
                 moved = max(moved, abs(dl) * kn)
         if moved < POSITION_TOLERANCE:
-            return
+            return it + 1
+    return MAX_ITERATIONS
 
 
 @njit(cache=True)
@@ -199,7 +200,7 @@ def _solve_velocities(model, x, q, v, L, cands, bounce_threshold):
         kn[k] = _inverse_mass_along(model, inv[c[0]], inv[max(c[2], 0)], c[0], c[2], ra, rb, n)
     lam_n = np.zeros(nc)
     lam_t = np.zeros((nc, 3))
-    for _ in range(MAX_ITERATIONS):
+    for it in range(MAX_ITERATIONS):
         change = 0.0
         for k in range(nc):
             if not active[k]:
@@ -232,14 +233,20 @@ def _solve_velocities(model, x, q, v, L, cands, bounce_threshold):
                     _apply_impulse(model, v, L, omega, inv, a, b, ra, rb, dp)
                     change = max(change, np.sqrt(np.dot(dp, dp)) * kt)
         if change < VELOCITY_TOLERANCE:
-            return
+            return it + 1
+    return MAX_ITERATIONS
 
 
 @njit(cache=True)
 def resolve_contacts(model, x, q, v, L, bounce_threshold):
-    """Project penetrations out, then apply contact and friction impulses, in place."""
+    """Project penetrations out, then apply contact and friction impulses, in place.
+
+    Returns the Gauss-Seidel sweeps used by the position and the velocity solves.
+    """
     cands = find_candidates(model, x, q)
     if cands.shape[0] == 0:
-        return
-    _project_positions(model, x, q, cands)
-    _solve_velocities(model, x, q, v, L, cands, bounce_threshold)
+        return 0, 0
+    return (
+        _project_positions(model, x, q, cands),
+        _solve_velocities(model, x, q, v, L, cands, bounce_threshold),
+    )

@@ -18,7 +18,7 @@ class Model(NamedTuple):
     Attributes:
       body_start: (B + 1,) particle offsets per body.
       body_mass: (B,) kg.  inertia0, inertia0_inv: (B, 3, 3) about the COM, body frame.
-      principal_axes: (B, 3, 3) columns are principal axes (body frame), det +1.
+      principal_axes: (B, 3, 3) rows are principal axes (body frame), det +1.
       principal_moments: (B, 3) ascending.  bound_radius: (B,) farthest particle surface (m).
       offsets: (N, 3) particle positions from the COM, body frame.  particle_mass, radius: (N,).
       particle_body: (N,) owning body.  gravity: (3,) m/s^2.
@@ -96,7 +96,7 @@ def build_model(
         masses.append(m.sum())
         inertias.append(inertia)
         inv.append(np.linalg.inv(inertia))
-        axes.append(p)
+        axes.append(np.ascontiguousarray(p.T))
         moments.append(w)
         bounds.append(np.linalg.norm(r0, axis=1).max() + radius)
         offsets.append(r0)
@@ -154,9 +154,10 @@ def seed_initial_state(model: Model, positions, velocity, angular_velocity) -> S
     pos = np.array(positions, dtype=float).reshape(-1, 3)
     cm = np.array(
         [
-            center_of_mass(pos[model.body_start[b] : model.body_start[b + 1]], model.particle_mass[
-                model.body_start[b] : model.body_start[b + 1]
-            ])
+            center_of_mass(
+                pos[model.body_start[b] : model.body_start[b + 1]],
+                model.particle_mass[model.body_start[b] : model.body_start[b + 1]],
+            )
             for b in range(nb)
         ]
     )

@@ -39,7 +39,7 @@ def world_omega(model, q, L, b):
 def _free_rotation_split(model, q, L, b, dt):
     """Exact flows about the principal axes composed as R1(h/2) R2(h/2) R3(h) R2(h/2) R1(h/2)."""
     for k, frac in ((0, 0.5), (1, 0.5), (2, 1.0), (1, 0.5), (0, 0.5)):
-        axis = model.principal_axes[b][:, k]
+        axis = model.principal_axes[b, k]
         body_l = quat_to_matrix(q).T @ L
         angle = np.dot(axis, body_l) / model.principal_moments[b, k] * frac * dt
         # a rotation about a body-frame axis multiplies on the right

@@ -1,4 +1,4 @@
-"""The seed's algorithm, kept faithfully with its quirks: the baseline whose drift the suite measures.
+"""The seed's algorithm, kept faithfully with its quirks: the baseline whose drift we measure.
 
 One step, in the blog's order (simulate_step!):
 1. particle-particle collisions (calculate_colisions!) over all pairs: overlapping particles are

@@ -1,0 +1,66 @@
+"""One engine interface for every engine, and the registry of engines by name."""
+
+import math
+from typing import Protocol
+
+from cases.errors import InputError
+from cases.scene import Scene
+from comparators.trajectory import Trajectory
+
+
+class Engine(Protocol):
+    """An engine runs a scene and returns the suite's trajectory table.
+
+    `run` builds the engine's own model from the scene alone, steps it with `integrator` and
+    `dt` for `duration` seconds, and reports model building and compilation as `setup_s`,
+    apart from stepping (`wall_s`).
+    """
+
+    name: str
+    integrators: tuple[str, ...]
+    default_integrator: str
+
+    def run(self, scene: Scene, integrator: str, dt: float, duration: float) -> Trajectory: ...
+
+
+ENGINES: dict[str, Engine] = {}
+
+
+def register(engine: Engine) -> Engine:
+    ENGINES[engine.name] = engine
+    return engine
+
+
+def get_engine(name: str) -> Engine:
+    try:
+        return ENGINES[name]
+    except KeyError:
+        raise InputError(f"unknown engine {name!r}: expected one of {', '.join(ENGINES)}") from None
+
+
+def run(
+    scene: Scene,
+    engine: str,
+    integrator: str | None = None,
+    dt: float | None = None,
+    duration: float | None = None,
+) -> Trajectory:
+    """Run `scene` on the named engine; None means the engine's or the scene's default.
+
+    Bad names and non-positive or non-finite dt or duration raise `InputError`.
+    """
+    eng = get_engine(engine)
+    integrator = eng.default_integrator if integrator is None else integrator
+    if integrator not in eng.integrators:
+        raise InputError(
+            f"unknown integrator {integrator!r} for engine {engine!r}: "
+            f"expected one of {', '.join(eng.integrators)}"
+        )
+    dt = scene.dt if dt is None else dt
+    duration = scene.duration if duration is None else duration
+    for key, value in (("dt", dt), ("duration", duration)):
+        if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+            raise InputError(f"{key}: expected a finite number > 0, got {value!r}")
+    if dt > duration:
+        raise InputError(f"dt {dt} is longer than duration {duration}: expected dt <= duration")
+    return eng.run(scene, integrator, float(dt), float(duration))

@@ -1,0 +1,211 @@
+"""Metrics computed by the suite from any engine's states, the same way for every engine.
+
+Nothing here reads an engine's own energy: every quantity comes from the trajectory table and
+the scene (masses and the particle inertia tensor).
+
+Drifts are relative: max over the run of |f(t) - f_expected(t)| / max over the run of
+|f_expected(t)|, with f_expected the initial value for conserved quantities (linear momentum
+corrected by the gravity impulse M g t); when f_expected is zero throughout, the drift is
+absolute.
+Potential energy is -M g . x, zero at the world origin.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from cases.exact import exact_states, exact_trajectory_available
+from cases.scene import Scene
+from comparators.trajectory import ANGULAR_VELOCITY, POSITION, QUATERNION, VELOCITY, Trajectory
+from reference_sim.quaternion import quats_angle_between, quats_to_matrices
+
+# A body is at rest when its COM speed and angular speed stay below these over the rest window:
+# 1 mm/s and 1 mrad/s are far below the motion of any case yet far above impulse-solver noise.
+REST_SPEED = 1e-3
+REST_ANGULAR_SPEED = 1e-3
+REST_WINDOW = 0.5  # s, the final stretch of the run inspected for rest
+
+
+def body_arrays(traj: Trajectory, body: str) -> dict[str, np.ndarray]:
+    """{'t': (S,), 'x': (S, 3), 'q': (S, 4), 'v': (S, 3), 'w': (S, 3)} of one body."""
+    rows = traj.body(body)
+    return {
+        "t": rows["t"].to_numpy(),
+        "x": rows[POSITION].to_numpy(),
+        "q": rows[QUATERNION].to_numpy(),
+        "v": rows[VELOCITY].to_numpy(),
+        "w": rows[ANGULAR_VELOCITY].to_numpy(),
+    }
+
+
+def _world_inertia(q: np.ndarray, inertia0: np.ndarray) -> np.ndarray:
+    r = quats_to_matrices(np.ascontiguousarray(q))
+    return r @ inertia0 @ r.transpose(0, 2, 1)
+
+
+def conserved_quantities(traj: Trajectory, scene: Scene) -> pd.DataFrame:
+    """Per sample time, summed over bodies: kinetic (translational, rotational), potential and
+    total energy (J); linear momentum p (kg m/s); angular momentum L about the system COM,
+    world axes (kg m^2/s)."""
+    g = np.asarray(scene.gravity)
+    total_mass = sum(b.mass for b in scene.bodies)
+    arrays = [body_arrays(traj, b.name) for b in scene.bodies]
+    t = arrays[0]["t"]
+    ke_t = np.zeros(len(t))
+    ke_r = np.zeros(len(t))
+    pe = np.zeros(len(t))
+    p = np.zeros((len(t), 3))
+    com = np.zeros((len(t), 3))
+    spin = np.zeros((len(t), 3))
+    for body, a in zip(scene.bodies, arrays, strict=True):
+        m = body.mass
+        iw = _world_inertia(a["q"], body.inertia)
+        lw = np.einsum("sij,sj->si", iw, a["w"])
+        ke_t += 0.5 * m * np.einsum("si,si->s", a["v"], a["v"])
+        ke_r += 0.5 * np.einsum("si,si->s", a["w"], lw)
+        pe -= m * a["x"] @ g
+        p += m * a["v"]
+        com += m * a["x"] / total_mass
+        spin += lw
+    v_com = p / total_mass
+    orbital = sum(
+        b.mass * np.cross(a["x"] - com, a["v"] - v_com)
+        for b, a in zip(scene.bodies, arrays, strict=True)
+    )
+    L = spin + orbital
+    return pd.DataFrame(
+        {
+            "t": t,
+            "kinetic_translational": ke_t,
+            "kinetic_rotational": ke_r,
+            "potential": pe,
+            "energy": ke_t + ke_r + pe,
+            **{f"p{c}": p[:, k] for k, c in enumerate("xyz")},
+            **{f"L{c}": L[:, k] for k, c in enumerate("xyz")},
+        }
+    )
+
+
+def relative_drift(values: np.ndarray, expected: np.ndarray | None = None) -> float:
+    """max_t |values(t) - expected(t)| / max_t |expected(t)|, absolute when expected is zero.
+
+    `values` is (S,) or (S, k); `expected` defaults to the initial value.
+    """
+    values = np.asarray(values, dtype=float)
+    if values.ndim == 1:
+        values = values[:, None]
+    expected = values[:1] if expected is None else np.asarray(expected).reshape(values.shape)
+    scale = np.linalg.norm(expected, axis=-1).max()
+    err = np.linalg.norm(values - expected, axis=1).max()
+    return float(err / scale) if scale > 0 else float(err)
+
+
+def drifts(traj: Trajectory, scene: Scene) -> dict[str, float]:
+    """Relative drifts of total energy, linear momentum and angular momentum."""
+    c = conserved_quantities(traj, scene)
+    p = c[["px", "py", "pz"]].to_numpy()
+    total_mass = sum(b.mass for b in scene.bodies)
+    p_expected = p[0] + total_mass * np.outer(c["t"].to_numpy(), scene.gravity)
+    return {
+        "energy_drift": relative_drift(c["energy"].to_numpy()),
+        "momentum_drift": relative_drift(p, p_expected),
+        "angular_momentum_drift": relative_drift(c[["Lx", "Ly", "Lz"]].to_numpy()),
+    }
+
+
+def pose_errors(traj: Trajectory, reference: list[dict[str, np.ndarray]], scene: Scene):
+    """Per body and sample: COM distance (m) and geodesic rotation angle (deg) to `reference`.
+
+    `reference` holds per body (scene order) 'x' (S, 3) and 'q' (S, 4) at the trajectory's
+    sample times. Returns a DataFrame with t, body, position_error, orientation_error_deg.
+    """
+    frames = []
+    for body, ref in zip(scene.bodies, reference, strict=True):
+        a = body_arrays(traj, body.name)
+        angle = quats_angle_between(np.ascontiguousarray(a["q"]), np.ascontiguousarray(ref["q"]))
+        frames.append(
+            pd.DataFrame(
+                {
+                    "t": a["t"],
+                    "body": body.name,
+                    "position_error": np.linalg.norm(a["x"] - ref["x"], axis=1),
+                    "orientation_error_deg": np.degrees(angle),
+                }
+            )
+        )
+    return pd.concat(frames, ignore_index=True)
+
+
+def support_plane(scene: Scene):
+    """The plane a body comes to rest on: the one whose normal points most against gravity."""
+    if not scene.planes or not scene.has_gravity:
+        return None
+    g = np.asarray(scene.gravity)
+    return max(scene.planes, key=lambda p: -np.dot(p.unit_normal, g) / np.linalg.norm(g))
+
+
+def rest(traj: Trajectory, scene: Scene, body: str, window: float = REST_WINDOW) -> dict:
+    """Rest detection over the last `window` seconds of one body's run.
+
+    Returns at_rest (speeds below REST_SPEED and REST_ANGULAR_SPEED throughout the window),
+    rest_time (start of the final stretch at rest, NaN if not at rest), com_height (final
+    distance of the COM from the support plane, NaN without one), max_speed and
+    max_angular_speed over the window.
+    """
+    a = body_arrays(traj, body)
+    speed = np.linalg.norm(a["v"], axis=1)
+    spin = np.linalg.norm(a["w"], axis=1)
+    still = (speed < REST_SPEED) & (spin < REST_ANGULAR_SPEED)
+    in_window = a["t"] >= a["t"][-1] - window
+    at_rest = bool(still[in_window].all())
+    moving = np.flatnonzero(~still)
+    rest_time = (a["t"][moving[-1] + 1] if len(moving) else a["t"][0]) if at_rest else np.nan
+    plane = support_plane(scene)
+    height = np.nan if plane is None else float(np.dot(plane.unit_normal, a["x"][-1] - plane.point))
+    return {
+        "at_rest": at_rest,
+        "rest_time": float(rest_time),
+        "com_height": height,
+        "max_speed": float(speed[in_window].max()),
+        "max_angular_speed": float(spin[in_window].max()),
+    }
+
+
+def summarize(traj: Trajectory, scene: Scene) -> dict[str, float | str | bool]:
+    """One run's headline numbers: speed, drifts, pose error against the exact solution where
+    the scene has one (largest over the run, and the orientation error at the end), largest
+    shape error (deforming engines) and rest (where the scene predicts a rest height)."""
+    m = traj.meta
+    out: dict[str, float | str | bool] = {
+        "case": m.case,
+        "engine": m.engine,
+        "integrator": m.integrator,
+        "dt": m.dt,
+        "steps": m.steps,
+        "setup_s": m.setup_s,
+        "wall_s": m.wall_s,
+        "steps_per_s": m.steps_per_s,
+        "realtime_factor": m.duration / m.wall_s if m.wall_s > 0 else float("inf"),
+    }
+    out.update(drifts(traj, scene))
+    if exact_trajectory_available(scene):
+        times = body_arrays(traj, scene.bodies[0].name)["t"]
+        errors = pose_errors(traj, exact_states(scene, times), scene)
+        out["reference"] = "exact"
+        out["position_error"] = float(errors["position_error"].max())
+        out["orientation_error_deg"] = float(errors["orientation_error_deg"].max())
+        final = errors[errors["t"] == errors["t"].max()]
+        out["final_orientation_error_deg"] = float(final["orientation_error_deg"].max())
+    if "shape_error" in traj.table:
+        out["shape_error"] = float(traj.table["shape_error"].max())
+    if scene.expected is not None and scene.expected.rest_com_height is not None:
+        for body in scene.bodies:
+            r = rest(traj, scene, body.name)
+            prefix = "" if len(scene.bodies) == 1 else f"{body.name}."
+            out[prefix + "at_rest"] = r["at_rest"]
+            out[prefix + "rest_com_height"] = r["com_height"]
+            out[prefix + "rest_height_error"] = r["com_height"] - scene.expected.rest_com_height
+    finite = np.isfinite(traj.table.drop(columns=["body"]).to_numpy()).all()
+    out["verdict"] = "ok" if finite else "diverged"
+    return out

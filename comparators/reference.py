@@ -1,0 +1,62 @@
+"""The particle reference simulator (`reference_sim`) as an engine."""
+
+import numpy as np
+
+from cases.scene import Scene
+from comparators.engine import register
+from comparators.trajectory import RunMeta, Trajectory, package_versions
+from reference_sim.model import build_model, rigid_initial_state, seed_initial_state
+from reference_sim.simulate import INTEGRATORS, simulate
+
+
+class ReferenceEngine:
+    name = "reference"
+    integrators = INTEGRATORS
+    default_integrator = "splitting"
+
+    def run(self, scene: Scene, integrator: str, dt: float, duration: float) -> Trajectory:
+        model = build_model(
+            [(b.particles, b.particle_radius) for b in scene.bodies],
+            scene.gravity,
+            [p.point for p in scene.planes],
+            [p.normal for p in scene.planes],
+            scene.contact.restitution if scene.contact else 0.0,
+            scene.contact.friction if scene.contact else 0.0,
+            contact=scene.has_contact,
+        )
+        velocity = [b.velocity for b in scene.bodies]
+        omega = [b.angular_velocity for b in scene.bodies]
+        if integrator == "seed":
+            positions = np.concatenate([b.positions for b in scene.bodies])
+            state = seed_initial_state(model, positions, velocity, omega)
+        else:
+            state = rigid_initial_state(model, [b.com for b in scene.bodies], velocity, omega)
+        n_steps = scene.steps(dt, duration)
+        result = simulate(model, state, integrator, dt, n_steps, scene.sample_stride(dt))
+        meta = RunMeta(
+            case=scene.name,
+            engine=self.name,
+            integrator=integrator,
+            dt=dt,
+            steps=n_steps,
+            duration=n_steps * dt,
+            setup_s=result.compile_s,
+            wall_s=result.wall_s,
+            versions=package_versions("numba"),
+            settings={
+                "contact": "impulses: position projection + PGS velocity impulses"
+                if scene.has_contact
+                else "none",
+                "gravity": "on" if model.gravity_on else "off",
+                "restitution": model.restitution,
+                "friction": model.friction,
+                "friction_cone": "isotropic Coulomb disc",
+            },
+        )
+        extra = None if result.shape_error is None else {"shape_error": result.shape_error}
+        return Trajectory.from_samples(
+            result.steps * dt, [b.name for b in scene.bodies], result.samples, meta, extra
+        )
+
+
+register(ReferenceEngine())

@@ -1,0 +1,147 @@
+"""The trajectory table every engine returns, with the run's metadata: the suite's contract.
+
+One row per sample per body, columns `COLUMNS` (plus optional ones such as `shape_error`):
+COM position and velocity (world, m and m/s), orientation quaternion (w, x, y, z) mapping the
+body's placement at t = 0 to its current one, world-frame angular velocity (rad/s).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import tempfile
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from cases.errors import InputError
+
+POSITION = ["x", "y", "z"]
+QUATERNION = ["qw", "qx", "qy", "qz"]
+VELOCITY = ["vx", "vy", "vz"]
+ANGULAR_VELOCITY = ["wx", "wy", "wz"]
+STATE = POSITION + QUATERNION + VELOCITY + ANGULAR_VELOCITY
+COLUMNS = ["t", "body", *STATE]
+META_KEY = b"rigidbench"
+
+
+def package_versions(*names: str) -> dict[str, str]:
+    """Versions of Python, rigidbench and the named distributions (missing ones are skipped)."""
+    out = {"python": platform.python_version()}
+    for name in ("rigidbench", "numpy", *names):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+@dataclass(frozen=True)
+class RunMeta:
+    """What produced a trajectory. Times in seconds; `wall_s` is stepping alone."""
+
+    case: str
+    engine: str
+    integrator: str
+    dt: float
+    steps: int
+    duration: float
+    setup_s: float
+    wall_s: float
+    versions: dict[str, str] = field(default_factory=dict)
+    settings: dict[str, object] = field(default_factory=dict)
+
+    @property
+    def steps_per_s(self) -> float:
+        return self.steps / self.wall_s if self.wall_s > 0 else float("inf")
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    table: pd.DataFrame
+    meta: RunMeta
+
+    @classmethod
+    def from_samples(cls, times, bodies, samples, meta: RunMeta, extra=None) -> Trajectory:
+        """Build from times (S,), body names (B,), samples (S, B, 13) in `STATE` order.
+
+        `extra` maps optional column names to (S, B) arrays.
+        """
+        samples = np.asarray(samples, dtype=float)
+        n_s, n_b = samples.shape[:2]
+        data = {
+            "t": np.repeat(np.asarray(times, dtype=float), n_b),
+            "body": np.tile(np.asarray(bodies, dtype=object), n_s),
+        }
+        flat = samples.reshape(n_s * n_b, len(STATE))
+        data.update({c: flat[:, k] for k, c in enumerate(STATE)})
+        for name, values in (extra or {}).items():
+            data[name] = np.asarray(values, dtype=float).reshape(n_s * n_b)
+        return cls(pd.DataFrame(data), meta)
+
+    @property
+    def bodies(self) -> list[str]:
+        return list(dict.fromkeys(self.table["body"]))
+
+    def body(self, name: str) -> pd.DataFrame:
+        """The rows of one body, in time order."""
+        return self.table[self.table["body"] == name].reset_index(drop=True)
+
+    def write(self, path: str | os.PathLike) -> Path:
+        """Write .csv (metadata beside it in FILE.meta.json) or .parquet (metadata inside).
+
+        Files are written to a temporary name and renamed, so nothing is ever half-written.
+        """
+        path = Path(path)
+        suffix = path.suffix.lower()
+        if suffix not in (".csv", ".parquet"):
+            raise InputError(f"output file {str(path)!r}: expected a .csv or .parquet name")
+        if not path.parent.is_dir():
+            raise InputError(f"output file {str(path)!r}: directory {str(path.parent)!r} missing")
+        meta = json.dumps(asdict(self.meta), default=str).encode()
+        if suffix == ".csv":
+            _atomic_write(path.with_name(path.name + ".meta.json"), meta)
+            _atomic_write(path, self.table.to_csv(index=False, float_format="%.17g").encode())
+        else:
+            table = pa.Table.from_pandas(self.table, preserve_index=False)
+            table = table.replace_schema_metadata({**table.schema.metadata, META_KEY: meta})
+            with atomic_path(path) as tmp:
+                pq.write_table(table, tmp)
+        return path
+
+    @classmethod
+    def read(cls, path: str | os.PathLike) -> Trajectory:
+        path = Path(path)
+        if path.suffix.lower() == ".csv":
+            table = pd.read_csv(path)
+            meta = json.loads(path.with_name(path.name + ".meta.json").read_text())
+        else:
+            arrow = pq.read_table(path)
+            table = arrow.to_pandas()
+            meta = json.loads(arrow.schema.metadata[META_KEY])
+        return cls(table, RunMeta(**meta))
+
+
+@contextmanager
+def atomic_path(path: Path):
+    """Yield a temporary path beside `path`; rename it to `path` only if the block succeeds."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    os.close(fd)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    with atomic_path(path) as tmp:
+        Path(tmp).write_bytes(data)

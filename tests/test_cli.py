@@ -1,0 +1,86 @@
+"""The rigidbench command line: commands work, bad input exits 2 with one line and no traceback."""
+
+import subprocess
+import sys
+
+import pytest
+
+from cases import CATALOG, load_scene
+from comparators import COLUMNS, Trajectory
+from reports.cli import main
+
+
+def rigidbench(*args: str, cwd=None) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "reports.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=cwd,
+    )
+
+
+def test_list_shows_every_case(capsys):
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    for name in CATALOG:
+        assert name in out
+
+
+@pytest.mark.parametrize("case", sorted(CATALOG))
+def test_show_round_trips(case, capsys, tmp_path):
+    assert main(["show", case]) == 0
+    path = tmp_path / f"{case}.toml"
+    path.write_text(capsys.readouterr().out)
+    assert load_scene(path) == CATALOG[case]
+
+
+@pytest.mark.parametrize("suffix", ["csv", "parquet"])
+def test_run_writes_the_trajectory_table(tmp_path, suffix):
+    out = tmp_path / f"t.{suffix}"
+    proc = rigidbench(
+        "run", "tumbling_box", "--engine", "reference", "--integrator", "splitting",
+        "--dt", "0.01", "--out", str(out),
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "angular_momentum_drift" in proc.stdout
+    traj = Trajectory.read(out)
+    assert list(traj.table.columns) == COLUMNS
+    assert len(traj.table) == 101  # samples every 0.1 s over 10 s, both ends included
+    assert traj.meta.integrator == "splitting" and traj.meta.steps == 1000
+
+
+def test_run_accepts_a_toml_file(tmp_path, capsys):
+    assert main(["show", "free_spin_cube"]) == 0
+    path = tmp_path / "mine.toml"
+    path.write_text(capsys.readouterr().out.replace('"free_spin_cube"', '"mine"'))
+    assert main(["run", str(path), "--integrator", "rk4", "--duration", "1"]) == 0
+    assert "mine" in capsys.readouterr().out
+
+
+BAD_TOML = 'name = "x"\nduration = 1.0\ndt = 0.01\ngravity = [0.0, 0.0]\n'
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["run", "no_such_case"], "unknown case 'no_such_case'"),
+        (["run", "tumbling_box", "--engine", "warp"], "unknown engine 'warp'"),
+        (["run", "tumbling_box", "--integrator", "leapfrog"], "unknown integrator 'leapfrog'"),
+        (["run", "tumbling_box", "--dt", "nan"], "expected a finite number > 0"),
+        (["run", "tumbling_box", "--dt", "-1"], "expected a finite number > 0"),
+        (["run", "tumbling_box", "--dt", "20"], "dt 20.0 is longer than duration"),
+        (["run", "tumbling_box", "--out", "t.txt"], "expected a file name ending in .csv"),
+        (["run", "{bad}"], "key 'gravity': expected 3 numbers"),
+        (["show", "{bad}"], "key 'gravity': expected 3 numbers"),
+    ],
+)
+def test_bad_input_exits_2_with_one_line(args, message, tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(BAD_TOML)
+    proc = rigidbench(*[a.replace("{bad}", str(bad)) for a in args], cwd=tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert message in proc.stderr
+    assert proc.stdout == ""
+    assert not list(tmp_path.glob("t.*"))
