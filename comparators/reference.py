@@ -5,8 +5,21 @@ import numpy as np
 from cases.scene import Scene
 from comparators.engine import register
 from comparators.trajectory import RunMeta, Trajectory, package_versions
-from reference_sim.model import build_model, rigid_initial_state, seed_initial_state
+from reference_sim.model import Model, build_model, rigid_initial_state, seed_initial_state
 from reference_sim.simulate import INTEGRATORS, simulate
+
+
+def model_from_scene(scene: Scene) -> Model:
+    """The simulator's model of `scene`: contact only where the scene has something to hit."""
+    return build_model(
+        [(b.particles, b.particle_radius) for b in scene.bodies],
+        scene.gravity,
+        [p.point for p in scene.planes],
+        [p.normal for p in scene.planes],
+        scene.contact.restitution if scene.contact else 0.0,
+        scene.contact.friction if scene.contact else 0.0,
+        contact=scene.has_contact,
+    )
 
 
 class ReferenceEngine:
@@ -15,15 +28,7 @@ class ReferenceEngine:
     default_integrator = "splitting"
 
     def run(self, scene: Scene, integrator: str, dt: float, duration: float) -> Trajectory:
-        model = build_model(
-            [(b.particles, b.particle_radius) for b in scene.bodies],
-            scene.gravity,
-            [p.point for p in scene.planes],
-            [p.normal for p in scene.planes],
-            scene.contact.restitution if scene.contact else 0.0,
-            scene.contact.friction if scene.contact else 0.0,
-            contact=scene.has_contact,
-        )
+        model = model_from_scene(scene)
         velocity = [b.velocity for b in scene.bodies]
         omega = [b.angular_velocity for b in scene.bodies]
         if integrator == "seed":

@@ -504,29 +504,9 @@ def _params(
     return float(dt), g, float(box_size), float(damping), float(restitution)
 
 
-def blog_step(
-    world: BlogWorld,
-    *,
-    dt: float = BLOG_DT,
-    gravity: Sequence[float] = BLOG_GRAVITY,
-    box_size: float = BLOG_BOX_SIZE,
-    damping: float = BLOG_DAMPING,
-    restitution: float = BLOG_RESTITUTION,
-    same_body_pairs: bool = True,
-    on_contact: ContactCallback | None = None,
-) -> None:
-    """One ``simulate_step!``; mutates ``world`` in place."""
-    blog_run(
-        world,
-        1,
-        dt=dt,
-        gravity=gravity,
-        box_size=box_size,
-        damping=damping,
-        restitution=restitution,
-        same_body_pairs=same_body_pairs,
-        on_contact=on_contact,
-    )
+def blog_step(world: BlogWorld, **params) -> None:
+    """One ``simulate_step!``; mutates ``world`` in place. Keywords as for :func:`blog_run`."""
+    blog_run(world, 1, **params)
 
 
 def blog_run(

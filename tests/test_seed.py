@@ -7,7 +7,8 @@ from blog_seed import blog_seed_cube_world, blog_step, blog_step_count
 from cases import CATALOG
 from comparators import run
 from comparators.engine import get_engine
-from reference_sim.model import build_model, seed_initial_state
+from comparators.reference import model_from_scene
+from reference_sim.model import seed_initial_state
 from reference_sim.seed import seed_step
 
 # The compiled seed and the pure-Python transliteration do the same float64 operations in
@@ -20,15 +21,7 @@ INFLATION_RTOL = 1e-12
 
 def _seed_model(scene):
     body = scene.bodies[0]
-    model = build_model(
-        [(body.particles, body.particle_radius)],
-        scene.gravity,
-        [p.point for p in scene.planes],
-        [p.normal for p in scene.planes],
-        scene.contact.restitution if scene.contact else 0.0,
-        scene.contact.friction if scene.contact else 0.0,
-        contact=scene.has_contact,
-    )
+    model = model_from_scene(scene)
     state = seed_initial_state(model, body.positions, [body.velocity], [body.angular_velocity])
     return model, [a.copy() for a in state]
 
