@@ -5,6 +5,7 @@ from typing import Protocol
 
 from cases.errors import InputError
 from cases.scene import Scene
+from comparators.parity import check_parity
 from comparators.trajectory import Trajectory
 
 
@@ -19,6 +20,7 @@ class Engine(Protocol):
     name: str
     integrators: tuple[str, ...]
     default_integrator: str
+    missing: str | None  # why the engine cannot run here (its package is absent), else None
 
     def run(self, scene: Scene, integrator: str, dt: float, duration: float) -> Trajectory: ...
 
@@ -47,7 +49,8 @@ def run(
 ) -> Trajectory:
     """Run `scene` on the named engine; None means the engine's or the scene's default.
 
-    Bad names and non-positive or non-finite dt or duration raise `InputError`.
+    Bad names and non-positive or non-finite dt or duration raise `InputError`; a model that
+    differs from the scene at t = 0 raises `comparators.parity.ParityError`.
     """
     eng = get_engine(engine)
     integrator = eng.default_integrator if integrator is None else integrator
@@ -63,4 +66,6 @@ def run(
             raise InputError(f"{key}: expected a finite number > 0, got {value!r}")
     if dt > duration:
         raise InputError(f"dt {dt} is longer than duration {duration}: expected dt <= duration")
-    return eng.run(scene, integrator, float(dt), float(duration))
+    traj = eng.run(scene, integrator, float(dt), float(duration))
+    check_parity(scene, traj.meta)
+    return traj

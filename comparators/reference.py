@@ -4,6 +4,7 @@ import numpy as np
 
 from cases.scene import Scene
 from comparators.engine import register
+from comparators.parity import body_readback
 from comparators.trajectory import RunMeta, Trajectory, package_versions
 from reference_sim.model import Model, build_model, rigid_initial_state, seed_initial_state
 from reference_sim.simulate import INTEGRATORS, simulate
@@ -26,18 +27,31 @@ class ReferenceEngine:
     name = "reference"
     integrators = INTEGRATORS
     default_integrator = "splitting"
+    missing = None
 
     def run(self, scene: Scene, integrator: str, dt: float, duration: float) -> Trajectory:
         model = model_from_scene(scene)
         velocity = [b.velocity for b in scene.bodies]
         omega = [b.angular_velocity for b in scene.bodies]
+        # the rigid state at t = 0, also the seed's body state (cm, V, omega)
+        scene_state = rigid_initial_state(model, [b.com for b in scene.bodies], velocity, omega)
         if integrator == "seed":
             positions = np.concatenate([b.positions for b in scene.bodies])
             state = seed_initial_state(model, positions, velocity, omega)
         else:
-            state = rigid_initial_state(model, [b.com for b in scene.bodies], velocity, omega)
+            state = scene_state
         n_steps = scene.steps(dt, duration)
         result = simulate(model, state, integrator, dt, n_steps, scene.sample_stride(dt))
+        bodies = {
+            b.name: body_readback(
+                model.body_mass[k],
+                model.inertia0[k],
+                scene_state.x[k],
+                scene_state.v[k],
+                model.inertia0_inv[k] @ scene_state.L[k],
+            )
+            for k, b in enumerate(scene.bodies)
+        }
         meta = RunMeta(
             case=scene.name,
             engine=self.name,
@@ -56,7 +70,9 @@ class ReferenceEngine:
                 "restitution": model.restitution,
                 "friction": model.friction,
                 "friction_cone": "isotropic Coulomb disc",
+                "inertia": "particle tensor, full 3 x 3",
             },
+            bodies=bodies,
         )
         extra = None if result.shape_error is None else {"shape_error": result.shape_error}
         return Trajectory.from_samples(

@@ -45,7 +45,12 @@ def package_versions(*names: str) -> dict[str, str]:
 
 @dataclass(frozen=True)
 class RunMeta:
-    """What produced a trajectory. Times in seconds; `wall_s` is stepping alone."""
+    """What produced a trajectory. Times in seconds; `wall_s` is stepping alone.
+
+    `settings` is the parity manifest: every engine setting that affects the result.
+    `bodies` maps body names to the model read back from the engine before stepping
+    (`comparators.parity.body_readback`): mass, inertia, x, v, w.
+    """
 
     case: str
     engine: str
@@ -57,6 +62,7 @@ class RunMeta:
     wall_s: float
     versions: dict[str, str] = field(default_factory=dict)
     settings: dict[str, object] = field(default_factory=dict)
+    bodies: dict[str, dict] = field(default_factory=dict)
 
     @property
     def steps_per_s(self) -> float:

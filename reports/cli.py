@@ -16,8 +16,10 @@ from rich.table import Table
 from cases import CATALOG, InputError, resolve_case, scene_to_toml
 from comparators import ENGINES, run
 from comparators.metrics import summarize
+from comparators.parity import ParityError
 
 EXIT_BAD_INPUT = 2
+EXIT_PARITY = 3  # an engine's model is not the scene: a bug in an adapter, not in the input
 
 
 def _number(text: str) -> float:
@@ -42,10 +44,11 @@ def _cmd_list(args, console: Console) -> None:
 
 def _cmd_engines(args, console: Console) -> None:
     table = Table(title="engines")
-    for col in ("engine", "integrators", "default"):
+    for col in ("engine", "integrators", "default", "status"):
         table.add_column(col)
     for engine in ENGINES.values():
-        table.add_row(engine.name, ", ".join(engine.integrators), engine.default_integrator)
+        status = f"unavailable: {engine.missing}" if engine.missing else "ok"
+        table.add_row(engine.name, ", ".join(engine.integrators), engine.default_integrator, status)
     console.print(table)
 
 
@@ -110,6 +113,9 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as exc:
         print(f"rigidbench: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except ParityError as exc:
+        print(f"rigidbench: parity error: {exc}", file=sys.stderr)
+        return EXIT_PARITY
     return 0
 
 
