@@ -20,6 +20,7 @@ class Engine(Protocol):
     name: str
     integrators: tuple[str, ...]
     default_integrator: str
+    orders: dict[str, int]  # the convergence order each integrator should show in dt
     missing: str | None  # why the engine cannot run here (its package is absent), else None
 
     def run(self, scene: Scene, integrator: str, dt: float, duration: float) -> Trajectory: ...

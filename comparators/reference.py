@@ -7,7 +7,7 @@ from comparators.engine import register
 from comparators.parity import body_readback
 from comparators.trajectory import RunMeta, Trajectory, package_versions
 from reference_sim.model import Model, build_model, rigid_initial_state, seed_initial_state
-from reference_sim.simulate import INTEGRATORS, simulate
+from reference_sim.simulate import INTEGRATORS, ORDERS, simulate
 
 
 def model_from_scene(scene: Scene) -> Model:
@@ -27,6 +27,7 @@ class ReferenceEngine:
     name = "reference"
     integrators = INTEGRATORS
     default_integrator = "splitting"
+    orders = ORDERS
     missing = None
 
     def run(self, scene: Scene, integrator: str, dt: float, duration: float) -> Trajectory:

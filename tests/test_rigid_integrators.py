@@ -157,6 +157,23 @@ def test_euler_on_tumbling_box_leaves_the_flip_pattern():
     assert min(errors) > 90.0, f"euler errors {errors} deg"
 
 
+def test_rk4_free_spin_error_is_the_classic_truncation():
+    """With constant omega, classic RK4 on q multiplies it each step by the degree-4 Taylor
+    polynomial of exp((0, omega dt / 2)); its rotation angle per step is
+    2 atan2(p - p^3/6, 1 - p^2/2 + p^4/24), p = |omega| dt / 2, instead of |omega| dt."""
+    scene = CATALOG["free_spin_cube"]
+    traj = run(scene, "reference", "rk4")
+    a = body_arrays(traj, "cube")
+    p = np.linalg.norm(scene.bodies[0].angular_velocity) * scene.dt / 2
+    per_step = 2 * np.arctan2(p - p**3 / 6, 1 - p**2 / 2 + p**4 / 24) - 2 * p
+    predicted = np.abs(per_step) * np.round(a["t"] / scene.dt)
+    errors = np.radians(
+        pose_errors(traj, exact_states(scene, a["t"]), scene)["orientation_error_deg"]
+    )
+    # 1000 steps of rounding in a quantity of order 1
+    np.testing.assert_allclose(errors, predicted, rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize("integrator", ["splitting", "rk4"])
 def test_gravity_is_integrated_exactly(integrator):
     """Kick-drift-kick and RK4 integrate constant gravity without error."""
