@@ -35,9 +35,21 @@ MAX_ITERATIONS = 500
 
 
 @njit(cache=True)
-def _world_inverse_inertia(model, q, b):
-    r = quat_to_matrix(q[b])
-    return r @ model.inertia0_inv[b] @ r.T
+def _update_frame(model, q, rot, inv, b):
+    """Rotation matrix and world inverse inertia of body b from its quaternion."""
+    rot[b] = quat_to_matrix(q[b])
+    inv[b] = rot[b] @ model.inertia0_inv[b] @ rot[b].T
+
+
+@njit(cache=True)
+def body_frames(model, q):
+    """(B, 3, 3) rotation matrices and world inverse inertias of every body."""
+    nb = q.shape[0]
+    rot = np.empty((nb, 3, 3))
+    inv = np.empty((nb, 3, 3))
+    for b in range(nb):
+        _update_frame(model, q, rot, inv, b)
+    return rot, inv
 
 
 @njit(cache=True)
@@ -83,16 +95,19 @@ def find_candidates(model, x, q):
 
 
 @njit(cache=True)
-def contact_geometry(model, x, q, c):
-    """Normal n (from b towards a), gap (m), lever arms r_a, r_b from each COM to the contact."""
+def contact_geometry(model, x, rot, c):
+    """Normal n (from b towards a), gap (m), lever arms r_a, r_b from each COM to the contact.
+
+    `rot` holds the bodies' rotation matrices (`body_frames`).
+    """
     a, i, b, j = c[0], c[1], c[2], c[3]
-    pa = x[a] + quat_to_matrix(q[a]) @ model.offsets[i]
+    pa = x[a] + rot[a] @ model.offsets[i]
     if b < 0:
         n = model.plane_normals[j].copy()
         gap = np.dot(n, pa - model.plane_points[j]) - model.radius[i]
         point = pa - model.radius[i] * n
         return n, gap, point - x[a], np.zeros(3)
-    pb = x[b] + quat_to_matrix(q[b]) @ model.offsets[j]
+    pb = x[b] + rot[b] @ model.offsets[j]
     d = pa - pb
     dist = np.sqrt(np.dot(d, d))
     n = d / dist if dist > 0 else np.array([0.0, 0.0, 1.0])
@@ -113,13 +128,15 @@ def _inverse_mass_along(model, inv_a, inv_b, a, b, ra, rb, n):
 
 
 @njit(cache=True)
-def _move_apart(model, x, q, inv_a, inv_b, a, b, ra, rb, push):
+def _move_apart(model, x, q, rot, inv, a, b, ra, rb, push):
     """Displace bodies a and b by the position impulse `push` (along n) at lever arms ra, rb."""
     x[a] += push / model.body_mass[a]
-    q[a] = quat_normalize(quat_multiply(quat_from_rotvec(inv_a @ np.cross(ra, push)), q[a]))
+    q[a] = quat_normalize(quat_multiply(quat_from_rotvec(inv[a] @ np.cross(ra, push)), q[a]))
+    _update_frame(model, q, rot, inv, a)
     if b >= 0:
         x[b] -= push / model.body_mass[b]
-        q[b] = quat_normalize(quat_multiply(quat_from_rotvec(-(inv_b @ np.cross(rb, push))), q[b]))
+        q[b] = quat_normalize(quat_multiply(quat_from_rotvec(-(inv[b] @ np.cross(rb, push))), q[b]))
+        _update_frame(model, q, rot, inv, b)
 
 
 @njit(cache=True)
@@ -129,23 +146,22 @@ def _project_positions(model, x, q, cands):
     Accumulating lets a contact give back an earlier push, so contacts sharing a load (a cube
     on its face) end exactly touching instead of being over-pushed one after another.
     """
+    rot, inv = body_frames(model, q)
     acc = np.zeros(cands.shape[0])
     for it in range(MAX_ITERATIONS):
         moved = 0.0
         for k in range(cands.shape[0]):
             c = cands[k]
-            n, gap, ra, rb = contact_geometry(model, x, q, c)
+            n, gap, ra, rb = contact_geometry(model, x, rot, c)
             if gap >= 0.0 and acc[k] == 0.0:
                 continue
             a, b = c[0], c[2]
-            inv_a = _world_inverse_inertia(model, q, a)
-            inv_b = _world_inverse_inertia(model, q, b) if b >= 0 else inv_a
-            kn = _inverse_mass_along(model, inv_a, inv_b, a, b, ra, rb, n)
+            kn = _inverse_mass_along(model, inv[a], inv[max(b, 0)], a, b, ra, rb, n)
             new = max(acc[k] - gap / kn, 0.0)
             dl = new - acc[k]
             acc[k] = new
             if dl != 0.0:
-                _move_apart(model, x, q, inv_a, inv_b, a, b, ra, rb, dl * n)
+                _move_apart(model, x, q, rot, inv, a, b, ra, rb, dl * n)
                 moved = max(moved, abs(dl) * kn)
         if moved < POSITION_TOLERANCE:
             return it + 1
@@ -153,85 +169,120 @@ def _project_positions(model, x, q, cands):
 
 
 @njit(cache=True)
-def _relative_velocity(model, v, omega, a, b, ra, rb):
-    u = v[a] + np.cross(omega[a], ra)
-    if b >= 0:
-        u -= v[b] + np.cross(omega[b], rb)
+def _tangents(n):
+    """Two unit vectors completing n to a right-handed orthonormal basis."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.57735 else np.array([0.0, 1.0, 0.0])
+    t1 = np.cross(n, helper)
+    t1 /= np.sqrt(np.dot(t1, t1))
+    return t1, np.cross(n, t1)
+
+
+@njit(cache=True)
+def _speed(jac, a, b, v, omega, k, d):
+    """Relative velocity of contact k along its direction d (0 normal, 1 and 2 tangents)."""
+    u = 0.0
+    for i in range(3):
+        u += jac[k, d, 0, i] * v[a, i] + jac[k, d, 1, i] * omega[a, i]
+        if b >= 0:
+            u -= jac[k, d, 0, i] * v[b, i] + jac[k, d, 3, i] * omega[b, i]
     return u
 
 
 @njit(cache=True)
-def _apply_impulse(model, v, L, omega, inv, a, b, ra, rb, p):
-    v[a] += p / model.body_mass[a]
-    L[a] += np.cross(ra, p)
-    omega[a] = inv[a] @ L[a]
-    if b >= 0:
-        v[b] -= p / model.body_mass[b]
-        L[b] -= np.cross(rb, p)
-        omega[b] = inv[b] @ L[b]
+def _push(model, jac, a, b, v, L, omega, k, d, lam):
+    """Apply the impulse lam along direction d of contact k to both bodies (dL = r x P)."""
+    for i in range(3):
+        v[a, i] += lam * jac[k, d, 0, i] / model.body_mass[a]
+        L[a, i] += lam * jac[k, d, 1, i]
+        omega[a, i] += lam * jac[k, d, 2, i]
+        if b >= 0:
+            v[b, i] -= lam * jac[k, d, 0, i] / model.body_mass[b]
+            L[b, i] -= lam * jac[k, d, 3, i]
+            omega[b, i] -= lam * jac[k, d, 4, i]
 
 
 @njit(cache=True)
 def _solve_velocities(model, x, q, v, L, cands, bounce_threshold):
+    """Projected Gauss-Seidel on the touching contacts' normal and friction impulses.
+
+    Per contact and direction (normal, two tangents) the Jacobian rows are precomputed:
+    jac[k, d] = (direction, r_a x dir, I_a^-1 (r_a x dir), r_b x dir, I_b^-1 (r_b x dir)), so a
+    sweep allocates nothing. Friction is solved as a 2 x 2 block and projected onto the disc.
+    """
     nb = model.body_mass.shape[0]
-    inv = np.empty((nb, 3, 3))
+    rot, inv = body_frames(model, q)
     omega = np.empty((nb, 3))
     for b in range(nb):
-        inv[b] = _world_inverse_inertia(model, q, b)
         omega[b] = inv[b] @ L[b]
-    # touching contacts, their geometry and their target normal speeds
     nc = cands.shape[0]
     active = np.zeros(nc, dtype=np.bool_)
-    normal = np.empty((nc, 3))
-    arm_a = np.empty((nc, 3))
-    arm_b = np.empty((nc, 3))
+    jac = np.zeros((nc, 3, 5, 3))
+    kn = np.ones(nc)
+    kt_inv = np.zeros((nc, 2, 2))
     target = np.zeros(nc)
-    kn = np.empty(nc)
     for k in range(nc):
-        c = cands[k]
-        n, gap, ra, rb = contact_geometry(model, x, q, c)
+        a, b = cands[k, 0], cands[k, 2]
+        n, gap, ra, rb = contact_geometry(model, x, rot, cands[k])
         if gap > TOUCH_TOLERANCE:
             continue
         active[k] = True
-        normal[k], arm_a[k], arm_b[k] = n, ra, rb
-        vn = np.dot(n, _relative_velocity(model, v, omega, c[0], c[2], ra, rb))
+        t1, t2 = _tangents(n)
+        for d, direction in enumerate((n, t1, t2)):
+            jac[k, d, 0] = direction
+            jac[k, d, 1] = np.cross(ra, direction)
+            jac[k, d, 2] = inv[a] @ jac[k, d, 1]
+            if b >= 0:
+                jac[k, d, 3] = np.cross(rb, direction)
+                jac[k, d, 4] = inv[b] @ jac[k, d, 3]
+        inv_mass = 1.0 / model.body_mass[a] + (1.0 / model.body_mass[b] if b >= 0 else 0.0)
+        kmat = np.empty((3, 3))
+        for d in range(3):
+            for e in range(3):
+                kmat[d, e] = (
+                    inv_mass * np.dot(jac[k, d, 0], jac[k, e, 0])
+                    + np.dot(jac[k, d, 1], jac[k, e, 2])
+                    + np.dot(jac[k, d, 3], jac[k, e, 4])
+                )
+        kn[k] = kmat[0, 0]
+        kt_inv[k] = np.linalg.inv(kmat[1:, 1:])
+        vn = _speed(jac, a, b, v, omega, k, 0)
         if vn < -bounce_threshold:
             target[k] = -model.restitution * vn
-        kn[k] = _inverse_mass_along(model, inv[c[0]], inv[max(c[2], 0)], c[0], c[2], ra, rb, n)
     lam_n = np.zeros(nc)
-    lam_t = np.zeros((nc, 3))
+    lam_t = np.zeros((nc, 2))
     for it in range(MAX_ITERATIONS):
         change = 0.0
         for k in range(nc):
             if not active[k]:
                 continue
             a, b = cands[k, 0], cands[k, 2]
-            n, ra, rb = normal[k], arm_a[k], arm_b[k]
             # normal impulse, accumulated and kept >= 0
-            vn = np.dot(n, _relative_velocity(model, v, omega, a, b, ra, rb))
+            vn = _speed(jac, a, b, v, omega, k, 0)
             new = max(lam_n[k] + (target[k] - vn) / kn[k], 0.0)
             dl = new - lam_n[k]
-            lam_n[k] = new
             if dl != 0.0:
-                _apply_impulse(model, v, L, omega, inv, a, b, ra, rb, dl * n)
+                lam_n[k] = new
+                _push(model, jac, a, b, v, L, omega, k, 0, dl)
                 change = max(change, abs(dl) * kn[k])
-            # friction impulse against the sliding velocity, kept inside the Coulomb disc
-            if model.friction > 0.0:
-                u = _relative_velocity(model, v, omega, a, b, ra, rb)
-                ut = u - np.dot(u, n) * n
-                speed = np.sqrt(np.dot(ut, ut))
-                if speed > 0.0:
-                    t = ut / speed
-                    kt = _inverse_mass_along(model, inv[a], inv[max(b, 0)], a, b, ra, rb, t)
-                    acc = lam_t[k] - (speed / kt) * t
-                    limit = model.friction * lam_n[k]
-                    mag = np.sqrt(np.dot(acc, acc))
-                    if mag > limit:
-                        acc *= limit / mag
-                    dp = acc - lam_t[k]
-                    lam_t[k] = acc
-                    _apply_impulse(model, v, L, omega, inv, a, b, ra, rb, dp)
-                    change = max(change, np.sqrt(np.dot(dp, dp)) * kt)
+            if model.friction == 0.0:
+                continue
+            # friction impulse stopping the sliding, kept inside the Coulomb disc
+            u1 = _speed(jac, a, b, v, omega, k, 1)
+            u2 = _speed(jac, a, b, v, omega, k, 2)
+            f1 = lam_t[k, 0] - (kt_inv[k, 0, 0] * u1 + kt_inv[k, 0, 1] * u2)
+            f2 = lam_t[k, 1] - (kt_inv[k, 1, 0] * u1 + kt_inv[k, 1, 1] * u2)
+            limit = model.friction * lam_n[k]
+            mag = np.sqrt(f1 * f1 + f2 * f2)
+            if mag > limit:
+                f1 *= limit / mag
+                f2 *= limit / mag
+            d1, d2 = f1 - lam_t[k, 0], f2 - lam_t[k, 1]
+            lam_t[k, 0], lam_t[k, 1] = f1, f2
+            if d1 != 0.0 or d2 != 0.0:
+                _push(model, jac, a, b, v, L, omega, k, 1, d1)
+                _push(model, jac, a, b, v, L, omega, k, 2, d2)
+                # kn, the normal's inverse mass, scales impulses to speeds like the tangents' would
+                change = max(change, np.sqrt(d1 * d1 + d2 * d2) * kn[k])
         if change < VELOCITY_TOLERANCE:
             return it + 1
     return MAX_ITERATIONS
