@@ -38,7 +38,12 @@ import numpy as np
 from scipy.special import elliprf
 
 from cases.scene import Scene
-from reference_sim.quaternion import quat_from_matrix, quat_from_rotvec
+from reference_sim.quaternion import (
+    quat_from_matrix,
+    quat_from_rotvec,
+    quats_conjugate,
+    quats_multiply,
+)
 
 # Principal moments closer than this (relative to the largest) are taken as equal, selecting the
 # isotropic or axisymmetric closed form. eigh's rounding of a symmetric body's inertia is ~1e-15
@@ -135,7 +140,7 @@ def _precession(ang_mom, axis, i_sym, i_trans, t) -> tuple[np.ndarray, np.ndarra
     rate = -(i_sym - i_trans) / i_trans * (l_sym / i_sym)
     q = np.empty((len(t), 4))
     for i, ti in enumerate(t):
-        q[i] = _qmul(
+        q[i] = quats_multiply(
             quat_from_rotvec(ang_mom * (ti / i_trans)), quat_from_rotvec(axis * (rate * ti))
         )
     # omega = I(t)^-1 L with I(t)^-1 = (1 - s s^T) / I_t + s s^T / I_s and s(t) = R(t) s.
@@ -200,8 +205,11 @@ def _jacobi(ang_mom, omega0, moments, axes, t, nodes, panel_fraction):
     # A(t) = Rz(phi) Rx(theta) Rz(psi) maps principal coordinates to a frame with z along L;
     # the world rotation is R(t) = frame A(0)^T A(t) frame^T, the identity at t = 0.
     q_frame = quat_from_matrix(frame)
-    q_start = _conj(_zxz_quat(np.zeros(1), theta0, psi0))
-    q = _qmul(_qmul(q_frame, _qmul(q_start, _zxz_quat(phi, theta, psi))), _conj(q_frame))
+    q_start = quats_conjugate(_zxz_quat(np.zeros(1), theta0, psi0))
+    q = quats_multiply(
+        quats_multiply(q_frame, quats_multiply(q_start, _zxz_quat(phi, theta, psi))),
+        quats_conjugate(q_frame),
+    )
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     # omega = R(t) frame I^-1 pi(t).
     w_body = np.column_stack([p1 / i1, p2 / i2, p3 / i3]) @ frame.T
@@ -264,26 +272,6 @@ def _zxz_quat(phi, theta, psi):
     return np.column_stack(
         [ch * np.cos(plus), sh * np.cos(minus), sh * np.sin(minus), ch * np.sin(plus)]
     )
-
-
-def _qmul(p, q):
-    """Hamilton product, broadcasting over leading axes."""
-    p, q = np.asarray(p), np.asarray(q)
-    pw, px, py, pz = np.moveaxis(p, -1, 0)
-    qw, qx, qy, qz = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        axis=-1,
-    )
-
-
-def _conj(q):
-    return np.asarray(q) * np.array([1.0, -1.0, -1.0, -1.0])
 
 
 def _rotate(q, v):

@@ -3,6 +3,8 @@
 import math
 from typing import Protocol
 
+import numpy as np
+
 from cases.errors import InputError
 from cases.scene import Scene
 from comparators.parity import check_parity
@@ -27,6 +29,12 @@ class Engine(Protocol):
 
 
 ENGINES: dict[str, Engine] = {}
+
+
+def sample_steps(n_steps: int, stride: int) -> np.ndarray:
+    """The step indices every engine samples: 0, every `stride` steps, and the last one."""
+    steps = np.arange(0, n_steps + 1, stride)
+    return steps if steps[-1] == n_steps else np.append(steps, n_steps)
 
 
 def register(engine: Engine) -> Engine:

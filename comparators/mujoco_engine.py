@@ -116,9 +116,10 @@ import time
 import numpy as np
 
 from cases.scene import Contact, Scene
-from comparators.engine import register
+from comparators.engine import register, sample_steps
 from comparators.parity import body_readback
 from comparators.trajectory import RunMeta, Trajectory, package_versions
+from reference_sim.inertia import principal_frame
 
 try:
     import mujoco
@@ -191,9 +192,7 @@ def principal_inertia(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     A + B >= C is restored where rounding broke it (planar clusters have C = A + B exactly).
     """
-    moments, axes = np.linalg.eigh(inertia)
-    if np.linalg.det(axes) < 0:
-        axes[:, 2] = -axes[:, 2]
+    moments, axes = principal_frame(inertia)
     if moments[2] > moments[0] + moments[1]:
         moments[2] = moments[0] + moments[1]
     quat = np.empty(4)
@@ -290,12 +289,6 @@ def readback(model, data, scene: Scene) -> dict[str, dict]:
             model.body_mass[b], inertia, data.xipos[b], velocity[3:], velocity[:3]
         )
     return bodies
-
-
-def sample_steps(n_steps: int, stride: int) -> np.ndarray:
-    """Step indices sampled: 0, every `stride` steps, and the last one."""
-    steps = np.arange(0, n_steps + 1, stride)
-    return steps if steps[-1] == n_steps else np.append(steps, n_steps)
 
 
 def _state_spec() -> int:

@@ -119,10 +119,11 @@ from contextlib import contextmanager
 import numpy as np
 
 from cases.scene import Scene
-from comparators.engine import register
+from comparators.engine import register, sample_steps
 from comparators.parity import body_readback
 from comparators.trajectory import RunMeta, Trajectory, package_versions
-from reference_sim.quaternion import quat_from_matrix
+from reference_sim.inertia import principal_frame
+from reference_sim.quaternion import quat_from_matrix, quat_to_matrix, quats_multiply
 
 
 @contextmanager
@@ -224,51 +225,8 @@ class PybulletSettings:
 DEFAULT_SETTINGS = PybulletSettings()
 
 
-def principal_frame(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Moments d (ascending) and a proper rotation P with inertia = P diag(d) P^T."""
-    d, axes = np.linalg.eigh(np.asarray(inertia, dtype=float))
-    if np.linalg.det(axes) < 0:
-        axes[:, 0] = -axes[:, 0]
-    return d, axes
-
-
 def _to_xyzw(q) -> list[float]:
     return [float(q[1]), float(q[2]), float(q[3]), float(q[0])]
-
-
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of (..., 4) w-first quaternions."""
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
-
-
-def _matrix(q) -> np.ndarray:
-    """Rotation matrix of a w-first unit quaternion."""
-    w, x, y, z = q
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-def _sample_steps(n_steps: int, stride: int) -> list[int]:
-    """Step indices sampled: 0, every `stride` steps, and the last."""
-    steps = list(range(0, n_steps + 1, stride))
-    if steps[-1] != n_steps:
-        steps.append(n_steps)
-    return steps
 
 
 def _add_body(body, maximal: bool, contact: bool, e: float, mu: float, cid: int) -> int:
@@ -352,7 +310,7 @@ def run_pybullet(
     mu = scene.contact.friction if contact else 0.0
     params = settings.engine_parameters(dt, scene.gravity)
     n_steps = scene.steps(dt, duration)
-    sample_steps = _sample_steps(n_steps, scene.sample_stride(dt))
+    sampled = sample_steps(n_steps, scene.sample_stride(dt))
 
     start = time.perf_counter()
     cid = connect()
@@ -369,7 +327,7 @@ def run_pybullet(
             x, q_xyzw = p.getBasePositionAndOrientation(uid, physicsClientId=cid)
             v, w = p.getBaseVelocity(uid, physicsClientId=cid)
             q_in = np.array([q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2]])
-            rot = _matrix(q_in)
+            rot = quat_to_matrix(q_in)
             inertia = rot @ np.diag(info[2]) @ rot.T
             readback[body.name] = body_readback(info[0], inertia, x, v, w)
             inertia_frames[body.name] = {
@@ -386,7 +344,7 @@ def run_pybullet(
         setup_s = time.perf_counter() - start
         start = time.perf_counter()
         done = 0
-        for k in sample_steps:
+        for k in sampled:
             for _ in range(k - done):
                 step(physicsClientId=cid)
             done = k
@@ -405,7 +363,7 @@ def run_pybullet(
         dtype=float,
     ).reshape(len(raw), len(ids), 13)
     conj0 = np.array(q0) * np.array([1.0, -1.0, -1.0, -1.0])
-    samples[:, :, 3:7] = _qmul(samples[:, :, 3:7], conj0[None, :, :])
+    samples[:, :, 3:7] = quats_multiply(samples[:, :, 3:7], conj0[None, :, :])
 
     contact_settings = (
         {
@@ -447,7 +405,7 @@ def run_pybullet(
         },
         bodies=readback,
     )
-    times = np.array(sample_steps, dtype=float) * dt
+    times = sampled * dt
     return Trajectory.from_samples(times, [b.name for b in scene.bodies], samples, meta)
 
 

@@ -29,3 +29,12 @@ def inertia_tensor(offsets, masses):
             for b in range(3):
                 inertia[a, b] -= masses[i] * r[a] * r[b]
     return inertia
+
+
+def principal_frame(inertia):
+    """Principal moments (3,) ascending and axes (3, 3) as columns, a proper rotation (det +1),
+    so that inertia = axes diag(moments) axes^T."""
+    moments, axes = np.linalg.eigh(np.asarray(inertia, dtype=float))
+    if np.linalg.det(axes) < 0:
+        axes[:, 2] = -axes[:, 2]
+    return moments, axes

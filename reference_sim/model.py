@@ -9,7 +9,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from reference_sim.inertia import center_of_mass, inertia_tensor
+from reference_sim.inertia import center_of_mass, inertia_tensor, principal_frame
 
 
 class Model(NamedTuple):
@@ -89,9 +89,7 @@ def build_model(
         pos, m = rows[:, :3], rows[:, 3]
         r0 = pos - center_of_mass(pos, m)
         inertia = inertia_tensor(r0, m)
-        w, p = np.linalg.eigh(inertia)
-        if np.linalg.det(p) < 0:
-            p[:, 2] = -p[:, 2]
+        w, p = principal_frame(inertia)
         starts.append(starts[-1] + len(rows))
         masses.append(m.sum())
         inertias.append(inertia)

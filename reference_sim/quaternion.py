@@ -105,3 +105,23 @@ def quats_angle_between(ps, qs):
     for i in range(ps.shape[0]):
         out[i] = quat_angle_between(ps[i], qs[i])
     return out
+
+
+def quats_multiply(p, q):
+    """Hamilton products of (..., 4) quaternion arrays, broadcasting over the leading axes."""
+    pw, px, py, pz = np.moveaxis(np.asarray(p, dtype=float), -1, 0)
+    qw, qx, qy, qz = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
+    return np.stack(
+        [
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ],
+        axis=-1,
+    )
+
+
+def quats_conjugate(q):
+    """Conjugates (inverses of unit quaternions) of a (..., 4) array."""
+    return np.asarray(q, dtype=float) * np.array([1.0, -1.0, -1.0, -1.0])

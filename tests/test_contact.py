@@ -4,9 +4,10 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scenes import head_on
 
 from cases import Body, Contact, Scene
-from cases.builders import box_corners, floor, seed_cube
+from cases.builders import box_corners, floor
 from cases.exact import exact_states
 from comparators import run
 from comparators.metrics import body_arrays, conserved_quantities, pose_errors
@@ -16,33 +17,13 @@ from comparators.metrics import body_arrays, conserved_quantities, pose_errors
 IMPULSE_ATOL = 1e-9
 
 
-def _head_on(restitution: float) -> Scene:
-    """Two seed cubes, faces aligned, approaching along x at 1 m/s each; no gravity."""
-    return Scene(
-        name="head_on",
-        duration=1.0,
-        dt=0.01,
-        gravity=(0.0, 0.0, 0.0),
-        contact=Contact(restitution=restitution, friction=0.0),
-        bodies=(
-            Body(name="a", particle_radius=0.2, particles=seed_cube(), velocity=(1.0, 0, 0)),
-            Body(
-                name="b",
-                particle_radius=0.2,
-                particles=seed_cube(offset=(1.5, 0.0, 0.0)),
-                velocity=(-1.0, 0, 0),
-            ),
-        ),
-    )
-
-
 @pytest.mark.parametrize("integrator", ["euler", "splitting", "rk4"])
 @pytest.mark.parametrize(
     ("restitution", "after"), [(1.0, (-1.0, 1.0)), (0.0, (0.0, 0.0)), (0.5, (-0.5, 0.5))]
 )
 def test_head_on_impact(integrator, restitution, after):
     """Equal masses, central impact: velocities after are -e and +e times the approach speed."""
-    scene = _head_on(restitution)
+    scene = head_on(restitution)
     traj = run(scene, "reference", integrator)
     for name, vx in zip(("a", "b"), after, strict=True):
         a = body_arrays(traj, name)

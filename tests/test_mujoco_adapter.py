@@ -7,9 +7,10 @@ import math
 
 import numpy as np
 import pytest
+from scenes import head_on
 
 from cases import CATALOG, Body, Contact, Scene
-from cases.builders import box_lattice, seed_cube
+from cases.builders import box_lattice
 from cases.exact import exact_states
 from comparators import mujoco_engine as mj
 from comparators import run
@@ -91,26 +92,6 @@ READBACK_SCENES = [
 ]
 
 
-def _head_on(restitution: float) -> Scene:
-    """tests/test_contact.py's scene: two seed cubes approaching along x at 1 m/s each."""
-    return Scene(
-        name="head_on",
-        duration=1.0,
-        dt=0.01,
-        gravity=(0.0, 0.0, 0.0),
-        contact=Contact(restitution=restitution, friction=0.0),
-        bodies=(
-            Body(name="a", particle_radius=0.2, particles=seed_cube(), velocity=(1.0, 0, 0)),
-            Body(
-                name="b",
-                particle_radius=0.2,
-                particles=seed_cube(offset=(1.5, 0.0, 0.0)),
-                velocity=(-1.0, 0, 0),
-            ),
-        ),
-    )
-
-
 @pytest.mark.parametrize("scene", READBACK_SCENES, ids=lambda s: s.name)
 def test_model_mass_and_inertia_read_back_equal_the_scene(scene):
     """The compiled model's bodies carry the particle mass and tensor: the geoms add none."""
@@ -168,7 +149,7 @@ def test_only_what_the_scene_needs_is_switched_on():
     assert not dropped.opt.disableflags & (disabled.mjDSBL_CONTACT | disabled.mjDSBL_GRAVITY)
     np.testing.assert_array_equal(dropped.opt.gravity, CATALOG["dropped_cube"].gravity)
     assert (dropped.geom_type == mujoco.mjtGeom.mjGEOM_PLANE).sum() == 1
-    two, _ = mj.build(_head_on(0.5), "RK4", 0.01)  # contact without planes: body-body only
+    two, _ = mj.build(head_on(0.5), "RK4", 0.01)  # contact without planes: body-body only
     assert not two.opt.disableflags & disabled.mjDSBL_CONTACT
     assert (two.geom_contype & two.geom_conaffinity).all()
     for model in (free, dropped, two):  # a divergence must show, not restart from qpos0
@@ -257,7 +238,7 @@ def test_dropped_cube_rests_on_a_face(integrator, dt):
 @pytest.mark.parametrize("restitution", [0.0, 0.5, 1.0])
 def test_head_on_impact_conserves_momentum(restitution, integrator):
     """Body-body contact acts (the cubes turn back for e > 0) and conserves momentum."""
-    scene = _head_on(restitution)
+    scene = head_on(restitution)
     traj = run(scene, "mujoco", integrator)
     p = conserved_quantities(traj, scene)[["px", "py", "pz"]].to_numpy()
     assert np.abs(p).max() < MOMENTUM_ATOL

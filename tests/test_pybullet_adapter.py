@@ -14,6 +14,8 @@ import pytest
 
 p = pytest.importorskip("pybullet")
 
+from scenes import head_on  # noqa: E402
+
 from cases import Body, Contact, Scene  # noqa: E402
 from cases.builders import box_corners, floor, seed_cube  # noqa: E402
 from cases.catalog import CATALOG  # noqa: E402
@@ -23,9 +25,9 @@ from comparators.metrics import body_arrays, conserved_quantities, rest  # noqa:
 from comparators.pybullet_engine import (  # noqa: E402
     PybulletSettings,
     connect,
-    principal_frame,
     run_pybullet,
 )
+from reference_sim.inertia import principal_frame  # noqa: E402
 from reference_sim.quaternion import (  # noqa: E402
     quat_to_matrix,
     quats_angle_between,
@@ -88,26 +90,6 @@ def _rotated_box(angular_velocity, dt=0.001, duration=0.5) -> Scene:
                 particle_radius=0.2,
                 particles=tuple(map(tuple, rows.tolist())),
                 angular_velocity=tuple(float(w) for w in angular_velocity),
-            ),
-        ),
-    )
-
-
-def _head_on(restitution: float, contact: bool = True) -> Scene:
-    """tests/test_contact.py's scene: two seed cubes approaching along x at 1 m/s each."""
-    return Scene(
-        name="head_on",
-        duration=1.0,
-        dt=0.01,
-        gravity=(0.0, 0.0, 0.0),
-        contact=Contact(restitution=restitution, friction=0.0) if contact else None,
-        bodies=(
-            Body(name="a", particle_radius=0.2, particles=seed_cube(), velocity=(1.0, 0, 0)),
-            Body(
-                name="b",
-                particle_radius=0.2,
-                particles=seed_cube(offset=(1.5, 0.0, 0.0)),
-                velocity=(-1.0, 0, 0),
             ),
         ),
     )
@@ -311,7 +293,7 @@ def test_dropped_cube_rests_on_a_face(integrator):
 @pytest.mark.parametrize("integrator", INTEGRATORS)
 @pytest.mark.parametrize("restitution", [0.0, 0.5, 1.0])
 def test_head_on_conserves_momentum(integrator, restitution):
-    scene = _head_on(restitution)
+    scene = head_on(restitution)
     traj = run(scene, "pybullet", integrator)
     c = conserved_quantities(traj, scene)
     np.testing.assert_allclose(c[["px", "py", "pz"]].to_numpy(), 0.0, atol=MOMENTUM_ATOL)
@@ -347,7 +329,7 @@ def test_plane_rebound_is_e(restitution):
 @pytest.mark.parametrize("integrator", INTEGRATORS)
 def test_without_contact_bodies_pass_through(integrator):
     """No contact in the scene: collision filtered out, the cubes fly through each other."""
-    scene = _head_on(1.0, contact=False)
+    scene = head_on(1.0, contact=False)
     traj = run(scene, "pybullet", integrator)
     assert traj.meta.settings["contact"].startswith("none")
     for name, vx in (("a", 1.0), ("b", -1.0)):
