@@ -3,8 +3,9 @@
 Every adapter reads back from its engine, before stepping, each body's mass, inertia tensor
 (about the COM, world axes), COM position and velocity and world angular velocity
 (`RunMeta.bodies`). The suite checks them against the scene: mass and inertia directly, the
-initial state through the total energy and the angular momentum it implies, so a frame mix-up
-(body- against world-frame omega, a principal frame applied twice) shows as a wrong L.
+initial state through the total energy, linear momentum and angular momentum it implies, so a
+frame mix-up (body- against world-frame omega, a principal frame applied twice) shows as a
+wrong L, and a flipped velocity, which energy cannot see, as a wrong linear momentum.
 """
 
 import numpy as np
@@ -32,7 +33,7 @@ def body_readback(mass, inertia, x, v, w) -> dict:
     }
 
 
-def _energy_and_momentum(scene: Scene, bodies: list[dict]):
+def _energy_and_momenta(scene: Scene, bodies: list[dict]):
     g = np.asarray(scene.gravity)
     energy, L = 0.0, np.zeros(3)
     total = sum(b["mass"] for b in bodies)
@@ -43,7 +44,7 @@ def _energy_and_momentum(scene: Scene, bodies: list[dict]):
         x, v, w = (np.asarray(b[k]) for k in ("x", "v", "w"))
         energy += 0.5 * m * v @ v + 0.5 * w @ inertia @ w - m * g @ x
         L += inertia @ w + m * np.cross(x - com, v - vcom)
-    return energy, L
+    return energy, total * vcom, L
 
 
 def _relative(a, b) -> float:
@@ -53,7 +54,7 @@ def _relative(a, b) -> float:
 
 
 def check_parity(scene: Scene, meta: RunMeta) -> dict[str, float]:
-    """Relative mismatches of mass, inertia, energy and L at t = 0; ParityError above tolerance."""
+    """Relative mismatches of mass, inertia, energy, p and L at t = 0; ParityError above tol."""
     expected = [
         body_readback(b.mass, b.inertia, b.com, b.velocity, b.angular_velocity)
         for b in scene.bodies
@@ -63,10 +64,10 @@ def check_parity(scene: Scene, meta: RunMeta) -> dict[str, float]:
     for body, want, got in zip(scene.bodies, expected, actual, strict=True):
         for quantity in ("mass", "inertia"):
             errors[f"{body.name}.{quantity}"] = _relative(got[quantity], want[quantity])
-    e_want, l_want = _energy_and_momentum(scene, expected)
-    e_got, l_got = _energy_and_momentum(scene, actual)
-    errors["energy"] = _relative(e_got, e_want)
-    errors["angular_momentum"] = _relative(l_got, l_want)
+    want = _energy_and_momenta(scene, expected)
+    got = _energy_and_momenta(scene, actual)
+    for k, quantity in enumerate(("energy", "momentum", "angular_momentum")):
+        errors[quantity] = _relative(got[k], want[k])
     for quantity, err in errors.items():
         if not err <= PARITY_RTOL:
             raise ParityError(

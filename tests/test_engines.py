@@ -116,3 +116,23 @@ def test_dropped_cube_rests_on_a_face(engine, integrator, dt):
     assert abs(height_error) < REST_HEIGHT_TOL, (
         f"dropped_cube/{engine}/{integrator}/dt={dt}: COM height {r['com_height']:.5f} m"
     )
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "quantity"),
+    [
+        ("mass", 8.0 * (1 + 1e-6), "cube.mass"),
+        ("inertia", np.diag([4.0, 4.0, 4.0 * (1 + 1e-6)]).tolist(), "cube.inertia"),
+        ("w", [0.0, 2.0, 0.0], "angular_momentum"),  # omega reported in the wrong frame
+        ("v", [0.0, 0.0, 2.0], "momentum"),  # a flip that energy cannot see
+        ("x", [3.5, 3.5, 8.5], "energy"),
+    ],
+)
+def test_parity_names_the_engine_and_the_quantity(field, value, quantity):
+    from comparators.parity import ParityError, check_parity
+
+    scene = CATALOG["seed_cube"]
+    meta = run(scene, "reference", "splitting", duration=0.01).meta
+    meta.bodies["cube"][field] = value
+    with pytest.raises(ParityError, match=f"'reference' on 'seed_cube': {quantity} at t = 0"):
+        check_parity(scene, meta)
