@@ -137,6 +137,28 @@ def pose_errors(traj: Trajectory, reference: list[dict[str, np.ndarray]], scene:
     return pd.concat(frames, ignore_index=True)
 
 
+# Sample times of runs with different dt are compared after rounding to this (s): far below any
+# sample interval, far above the rounding of step * dt.
+TIME_MATCH = 1e-9
+
+
+def pose_errors_between(traj: Trajectory, reference: Trajectory, scene: Scene) -> pd.DataFrame:
+    """`pose_errors` of `traj` against another run's trajectory, at the sample times they share."""
+    ref_t = np.round(body_arrays(reference, scene.bodies[0].name)["t"] / TIME_MATCH)
+    own_t = np.round(body_arrays(traj, scene.bodies[0].name)["t"] / TIME_MATCH)
+    shared = np.intersect1d(own_t, ref_t)
+    if len(shared) == 0:
+        raise ValueError(f"{scene.name}: the two runs share no sample time")
+    keep = np.isin(np.round(traj.table["t"].to_numpy() / TIME_MATCH), shared)
+    sub = Trajectory(traj.table[keep].reset_index(drop=True), traj.meta)
+    states = []
+    for body in scene.bodies:
+        a = body_arrays(reference, body.name)
+        rows = np.isin(np.round(a["t"] / TIME_MATCH), shared)
+        states.append({k: v[rows] for k, v in a.items()})
+    return pose_errors(sub, states, scene)
+
+
 def support_plane(scene: Scene):
     """The plane a body comes to rest on: the one whose normal points most against gravity."""
     if not scene.planes or not scene.has_gravity:

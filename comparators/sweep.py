@@ -12,12 +12,35 @@ Reference solutions: contact-free cases are measured against the exact solution
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
+import multiprocessing
+import os
+import platform
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
+from pathlib import Path
 
+import numpy as np
 import pandas as pd
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 
+from cases.catalog import CATALOG
+from cases.errors import InputError
+from cases.exact import exact_trajectory_available
 from cases.scene import Scene
-from comparators.trajectory import Trajectory
+from comparators.cache import ResultsCache, code_version, run_key
+from comparators.engine import ENGINES, run
+from comparators.metrics import pose_errors_between, summarize
+from comparators.trajectory import Trajectory, package_versions
 
 # One row per run. Errors are maxima over the run; drifts are relative (comparators.metrics).
 RESULT_COLUMNS = [
@@ -74,3 +97,247 @@ class SweepResult:
     computed: int = 0
     cached: int = 0
     orders: dict[tuple[str, str], int] = field(default_factory=dict)  # (engine, integrator)
+
+
+# dt sweeps as multiples of each case's default dt. Full: two octaves coarser and four finer
+# reach the asymptotic range of every integrator on the exact cases. Quick: three points, the
+# fewest a convergence fit can use.
+FULL_DT_FACTORS = (2.0, 1.0, 0.5, 0.25, 0.125, 0.0625)
+QUICK_DT_FACTORS = (2.0, 1.0, 0.5)
+# Timing: a run is repeated until it has REPEATS timings, but only while one run takes less
+# than REPEAT_BELOW_S: longer runs average out scheduler noise within themselves.
+REPEATS = 3
+REPEAT_BELOW_S = 1.0
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run of the matrix."""
+
+    scene: Scene
+    engine: str
+    integrator: str
+    dt: float
+    repeats: int = REPEATS
+
+    @property
+    def label(self) -> str:
+        return f"{self.scene.name}/{self.engine}/{self.integrator}/dt={self.dt:g}"
+
+
+def plan(
+    scenes: list[Scene],
+    engines: list[str],
+    quick: bool = False,
+    repeats: int = REPEATS,
+    dt_factors: tuple[float, ...] | None = None,
+) -> list[RunSpec]:
+    """The runs of the matrix, ordered so that consecutive runs cycle through the engines:
+    machine drift during the sweep then falls on every engine alike.
+
+    dt sweeps are `dt_factors` (default: the quick or full factors) times each scene's dt.
+    """
+    factors = dt_factors or (QUICK_DT_FACTORS if quick else FULL_DT_FACTORS)
+    per_engine = {
+        name: [
+            RunSpec(scene, name, integrator, scene.dt * f, repeats)
+            for scene in scenes
+            for f in factors
+            for integrator in ENGINES[name].integrators
+        ]
+        for name in engines
+    }
+    ordered = []
+    for group in itertools.zip_longest(*per_engine.values()):
+        ordered.extend(spec for spec in group if spec is not None)
+    return ordered
+
+
+def execute(spec: RunSpec) -> tuple[Trajectory | None, str | None]:
+    """Run `spec` (repeating it for timing) in whatever process the executor chose.
+
+    Returns the trajectory, with wall_s the median stepping time and wall_runs every timing,
+    or None and the reason it failed: an exception never escapes, so one bad run cannot stop a
+    sweep.
+    """
+    try:
+        traj = run(spec.scene, spec.engine, spec.integrator, dt=spec.dt)
+        walls = [traj.meta.wall_s]
+        while len(walls) < spec.repeats and traj.meta.wall_s < REPEAT_BELOW_S:
+            walls.append(run(spec.scene, spec.engine, spec.integrator, dt=spec.dt).meta.wall_s)
+        meta = dataclasses.replace(traj.meta, wall_s=float(np.median(walls)), wall_runs=walls)
+        return Trajectory(traj.table, meta), None
+    except Exception as exc:  # noqa: BLE001  (reported in the results, never raised)
+        return None, f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
+
+
+def warm_up(engines: list[str]) -> None:
+    """Compile (or load) the reference simulator's code once, before workers fork from us."""
+    if "reference" in engines:
+        for integrator in ("seed", "splitting"):
+            run(CATALOG["dropped_cube"], "reference", integrator, duration=0.02)
+
+
+class LocalExecutor:
+    """A process pool on this machine (fork: workers inherit the compiled simulator)."""
+
+    def __init__(self, jobs: int):
+        self.jobs = jobs
+        self.name = f"local process pool, {jobs} worker(s)"
+
+    def map_unordered(self, fn, items):
+        ctx = multiprocessing.get_context("fork")
+        with ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx) as pool:
+            futures = {pool.submit(fn, item): item for item in items}
+            for future in as_completed(futures):
+                yield futures[future], future.result()
+
+
+class DaskExecutor:
+    """Runs on a Dask cluster (`pip install 'rigidbench[dask]'`); results come back here."""
+
+    def __init__(self, scheduler: str):
+        try:
+            from distributed import Client
+        except ImportError as exc:
+            raise InputError(
+                f"--executor dask needs the dask extra: pip install 'rigidbench[dask]' ({exc})"
+            ) from None
+        try:
+            self.client = Client(scheduler, timeout="10s")
+        except OSError as exc:
+            raise InputError(f"--scheduler {scheduler!r}: cannot connect: {exc}") from None
+        self.name = f"dask cluster at {scheduler}"
+
+    def map_unordered(self, fn, items):
+        from distributed import as_completed as dask_completed
+
+        futures = {self.client.submit(fn, item, pure=False): item for item in items}
+        for future in dask_completed(futures):
+            yield futures[future], future.result()
+
+
+def machine_info() -> dict[str, str]:
+    """CPU, cores, OS, Python and the versions of every package that computes results."""
+    cpu = platform.processor() or platform.machine()
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.exists():
+        for line in cpuinfo.read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    info = {"cpu": cpu, "cores": str(os.cpu_count()), "os": platform.platform()}
+    info.update(package_versions("numba", "scipy", "pandas", "mujoco", "pybullet"))
+    return info
+
+
+def run_sweep(
+    specs: list[RunSpec], cache: ResultsCache, executor, progress: bool = True
+) -> SweepResult:
+    """Run every spec not already in `cache`, store each trajectory as it arrives, and
+    assemble the results table."""
+    start = time.perf_counter()
+    keys = {
+        spec: run_key(spec.scene, spec.engine, spec.integrator, spec.dt, spec.repeats)
+        for spec in specs
+    }
+    trajectories: dict[RunSpec, Trajectory] = {}
+    failures: dict[RunSpec, str] = {}
+    todo = []
+    for spec in specs:
+        cached = cache.get(keys[spec])
+        if cached is None:
+            todo.append(spec)
+        else:
+            trajectories[spec] = cached
+    columns = [
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TextColumn("eta"),
+        TimeRemainingColumn(),
+    ]
+    with Progress(*columns, disable=not progress or not todo, transient=False) as bar:
+        task = bar.add_task(f"{len(todo)} runs ({len(specs) - len(todo)} cached)", total=len(todo))
+        for spec, (traj, error) in executor.map_unordered(execute, todo):
+            if traj is None:
+                failures[spec] = error
+            else:
+                cache.put(keys[spec], traj)
+                trajectories[spec] = traj
+            bar.update(task, advance=1, description=spec.label)
+    scenes = {spec.scene.name: spec.scene for spec in specs}
+    results, references = _results(specs, keys, trajectories, failures)
+    return SweepResult(
+        scenes=scenes,
+        results=results,
+        trajectories={keys[s]: t for s, t in trajectories.items()},
+        references=references,
+        elapsed_s=time.perf_counter() - start,
+        machine=machine_info(),
+        executor=executor.name,
+        computed=len(todo),
+        cached=len(specs) - len(todo),
+        orders={(s.engine, s.integrator): ENGINES[s.engine].orders[s.integrator] for s in specs},
+    )
+
+
+def _engine_version(traj: Trajectory) -> str:
+    return ", ".join(f"{k} {v}" for k, v in traj.meta.versions.items() if k not in COMMON_PACKAGES)
+
+
+COMMON_PACKAGES = ("python", "numpy")
+
+
+def _reference_label(scene: Scene) -> str:
+    if exact_trajectory_available(scene):
+        return "exact: ballistic COM and closed-form torque-free rotation (cases.exact)"
+    label = "self-convergence: each engine and integrator against its own run at the finest dt"
+    if scene.expected is not None and scene.expected.rest_com_height is not None:
+        label += f"; rest height against the closed form {scene.expected.rest_com_height:g} m"
+    return label
+
+
+def _results(specs, keys, trajectories, failures) -> tuple[pd.DataFrame, dict[str, str]]:
+    finest: dict[tuple, RunSpec] = {}
+    for spec in trajectories:
+        group = (spec.scene.name, spec.engine, spec.integrator)
+        if group not in finest or spec.dt < finest[group].dt:
+            finest[group] = spec
+    rows = []
+    for spec in specs:
+        row = dict.fromkeys(RESULT_COLUMNS, np.nan)
+        row.update(
+            case=spec.scene.name,
+            engine=spec.engine,
+            integrator=spec.integrator,
+            dt=spec.dt,
+            key=keys[spec],
+            code_version=code_version(),
+        )
+        traj = trajectories.get(spec)
+        if traj is None:
+            row.update(verdict=f"failed: {failures[spec]}", repeats=0)
+            rows.append(row)
+            continue
+        summary = summarize(traj, spec.scene)
+        row.update({k: v for k, v in summary.items() if k in row and k != "key"})
+        walls = traj.meta.wall_runs or [traj.meta.wall_s]
+        row.update(
+            duration=traj.meta.duration,
+            repeats=len(walls),
+            wall_min_s=min(walls),
+            wall_max_s=max(walls),
+            engine_version=_engine_version(traj),
+        )
+        if not exact_trajectory_available(spec.scene):
+            ref = finest[(spec.scene.name, spec.engine, spec.integrator)]
+            row["reference"] = f"self-convergence (dt={ref.dt:g})"
+            if ref is not spec:
+                errors = pose_errors_between(traj, trajectories[ref], spec.scene)
+                row["position_error"] = errors["position_error"].max()
+                row["orientation_error_deg"] = errors["orientation_error_deg"].max()
+        rows.append(row)
+    references = {spec.scene.name: _reference_label(spec.scene) for spec in specs}
+    return pd.DataFrame(rows, columns=RESULT_COLUMNS), references

@@ -63,6 +63,7 @@ class RunMeta:
     versions: dict[str, str] = field(default_factory=dict)
     settings: dict[str, object] = field(default_factory=dict)
     bodies: dict[str, dict] = field(default_factory=dict)
+    wall_runs: list[float] = field(default_factory=list)  # every timing when repeated
 
     @property
     def steps_per_s(self) -> float:

@@ -8,13 +8,16 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
+import time
+from pathlib import Path
 
 from rich.console import Console
 from rich.table import Table
 
 from cases import CATALOG, InputError, resolve_case, scene_to_toml
-from comparators import ENGINES, run
+from comparators import ENGINES, get_engine, run
 from comparators.metrics import summarize
 from comparators.parity import ParityError
 
@@ -30,6 +33,17 @@ def _number(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
     if not math.isfinite(value) or value <= 0:
         raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return value
+
+
+def _count(text: str) -> int:
+    """argparse type: a whole number >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a number >= 1, got {text!r}")
     return value
 
 
@@ -83,6 +97,45 @@ def _cmd_run(args, console: Console) -> None:
         console.print(f"wrote {len(traj.table)} rows to {args.out}")
 
 
+DEFAULT_OUT = Path(__file__).resolve().parent / "out"
+
+
+def _cmd_report(args, console: Console) -> None:
+    from comparators.cache import ResultsCache
+    from comparators.sweep import DaskExecutor, LocalExecutor, plan, run_sweep, warm_up
+    from reports.report import write_report
+
+    start = time.perf_counter()
+    scenes = [resolve_case(c) for c in args.cases] if args.cases else list(CATALOG.values())
+    if len({s.name for s in scenes}) != len(scenes):
+        raise InputError("--cases: two cases have the same name: expected distinct cases")
+    available = [name for name, engine in ENGINES.items() if not engine.missing]
+    engines = args.engines or available
+    for name in engines:
+        get_engine(name)
+    if args.executor == "dask":
+        if not args.scheduler:
+            raise InputError("--executor dask: expected --scheduler ADDRESS (e.g. tcp://host:8786)")
+        executor = DaskExecutor(args.scheduler)
+    else:
+        executor = LocalExecutor(args.jobs)
+    out = Path(args.out)
+    cache = ResultsCache(Path(args.cache) if args.cache else out / "cache")
+    with console.status("compiling the reference simulator", spinner="dots"):
+        warm_up(engines)
+    specs = plan(scenes, engines, quick=args.quick)
+    result = run_sweep(specs, cache, executor)
+    files = write_report(result, out, command=" ".join(["rigidbench", *sys.argv[1:]]))
+    failed = result.results["verdict"].str.startswith("failed").sum()
+    diverged = (result.results["verdict"] == "diverged").sum()
+    console.print(
+        f"{len(specs)} runs ({result.computed} computed, {result.cached} cached, "
+        f"{diverged} diverged, {failed} failed) in {time.perf_counter() - start:.1f} s"
+    )
+    for path in files.values():
+        console.print(f"wrote {path}")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="rigidbench", description="Validation and benchmark suite for rigid-body physics."
@@ -99,10 +152,27 @@ def build_parser() -> argparse.ArgumentParser:
     run_p.add_argument("--dt", type=_number, help="time step in s (default: the case's)")
     run_p.add_argument("--duration", type=_number, help="simulated time in s (default: the case's)")
     run_p.add_argument("--out", help="write the trajectory table to FILE.csv or FILE.parquet")
+    rep = sub.add_parser("report", help="sweep case x engine x integrator x dt; write the report")
+    rep.add_argument("--cases", nargs="+", help="catalog names or .toml files (default: catalog)")
+    rep.add_argument("--engines", nargs="+", help="engine names (default: every available one)")
+    rep.add_argument("--quick", action="store_true", help="a reduced dt sweep (3 steps per case)")
+    rep.add_argument("--out", default=str(DEFAULT_OUT), help=f"output directory ({DEFAULT_OUT})")
+    rep.add_argument("--cache", help="results cache directory (default: OUT/cache)")
+    rep.add_argument("--executor", choices=("local", "dask"), default="local")
+    rep.add_argument("--scheduler", help="Dask scheduler address, with --executor dask")
+    rep.add_argument(
+        "--jobs", type=_count, default=os.cpu_count() or 1, help="local worker processes"
+    )
     return parser
 
 
-COMMANDS = {"list": _cmd_list, "engines": _cmd_engines, "show": _cmd_show, "run": _cmd_run}
+COMMANDS = {
+    "list": _cmd_list,
+    "engines": _cmd_engines,
+    "show": _cmd_show,
+    "run": _cmd_run,
+    "report": _cmd_report,
+}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,65 @@
+"""The results cache: each run's trajectory stored once, under a key of everything it depends on.
+
+The key hashes the case's content (its TOML), engine, integrator, dt, timing repeats, the
+versions of the packages that compute results, and the code version (a hash of the sources of
+`cases`, `reference_sim` and `comparators`). Re-running after a change recomputes only what the
+change can affect. Entries are Parquet files written atomically (temporary name, then rename), so
+a sweep killed midway leaves only complete entries.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from functools import cache
+from pathlib import Path
+
+from cases.toml_io import scene_to_toml
+from comparators.trajectory import Trajectory, package_versions
+
+ROOT = Path(__file__).resolve().parent.parent
+CODE_PACKAGES = ("cases", "reference_sim", "comparators")
+RESULT_PACKAGES = ("numba", "scipy", "mujoco", "pybullet")
+
+
+@cache
+def code_version() -> str:
+    """Hash of the sources that compute results (the report's own code is not part of it)."""
+    digest = hashlib.sha256()
+    for package in CODE_PACKAGES:
+        for path in sorted((ROOT / package).rglob("*.py")):
+            digest.update(str(path.relative_to(ROOT)).encode())
+            digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def run_key(scene, engine: str, integrator: str, dt: float, repeats: int) -> str:
+    """The cache key of one run."""
+    payload = {
+        "scene": scene_to_toml(scene),
+        "engine": engine,
+        "integrator": integrator,
+        "dt": repr(float(dt)),
+        "repeats": int(repeats),
+        "versions": package_versions(*RESULT_PACKAGES),
+        "code": code_version(),
+    }
+    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:32]
+
+
+class ResultsCache:
+    """Trajectories by run key, as Parquet files in one directory."""
+
+    def __init__(self, root: Path):
+        self.root = Path(root)
+        self.root.mkdir(parents=True, exist_ok=True)
+
+    def path(self, key: str) -> Path:
+        return self.root / f"{key}.parquet"
+
+    def get(self, key: str) -> Trajectory | None:
+        path = self.path(key)
+        return Trajectory.read(path) if path.exists() else None
+
+    def put(self, key: str, traj: Trajectory) -> None:
+        traj.write(self.path(key))
