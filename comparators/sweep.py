@@ -171,11 +171,20 @@ def execute(spec: RunSpec) -> tuple[Trajectory | None, str | None]:
         return None, f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
 
 
+def _compile(integrator: str) -> None:
+    run(CATALOG["dropped_cube"], "reference", integrator, duration=0.02)
+
+
 def warm_up(engines: list[str]) -> None:
-    """Compile (or load) the reference simulator's code once, before workers fork from us."""
+    """Compile the reference simulator's two step loops in parallel processes (they write
+    numba's cache), then load them here, before workers fork from this process."""
     if "reference" in engines:
-        for integrator in ("seed", "splitting"):
-            run(CATALOG["dropped_cube"], "reference", integrator, duration=0.02)
+        integrators = ("seed", "splitting")
+        ctx = multiprocessing.get_context("fork")
+        with ProcessPoolExecutor(max_workers=len(integrators), mp_context=ctx) as pool:
+            list(pool.map(_compile, integrators))
+        for integrator in integrators:
+            _compile(integrator)
 
 
 class LocalExecutor:
