@@ -64,6 +64,8 @@ class ReferenceEngine:
             wall_s=result.wall_s,
             versions=package_versions("numba"),
             settings={
+                "integrator": integrator,
+                "timestep": dt,
                 "contact": "impulses: position projection + PGS velocity impulses"
                 if scene.has_contact
                 else "none",

@@ -40,6 +40,7 @@ from cases.scene import Scene
 from comparators.cache import ResultsCache, code_version, run_key
 from comparators.engine import ENGINES, run
 from comparators.metrics import pose_errors_between, summarize
+from comparators.parity import ParityError
 from comparators.trajectory import Trajectory, package_versions
 
 # One row per run. Errors are maxima over the run; drifts are relative (comparators.metrics).
@@ -167,6 +168,8 @@ def execute(spec: RunSpec) -> tuple[Trajectory | None, str | None]:
             walls.append(run(spec.scene, spec.engine, spec.integrator, dt=spec.dt).meta.wall_s)
         meta = dataclasses.replace(traj.meta, wall_s=float(np.median(walls)), wall_runs=walls)
         return Trajectory(traj.table, meta), None
+    except ParityError as exc:
+        return None, f"parity: {exc}"
     except Exception as exc:  # noqa: BLE001  (reported in the results, never raised)
         return None, f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
 

@@ -84,3 +84,35 @@ def test_bad_input_exits_2_with_one_line(args, message, tmp_path):
     assert message in proc.stderr
     assert proc.stdout == ""
     assert not list(tmp_path.glob("t.*"))
+
+
+def test_report_end_to_end(tmp_path):
+    out = tmp_path / "out"
+    proc = rigidbench(
+        "report", "--cases", "free_spin_cube", "--engines", "reference", "pybullet", "--quick",
+        "--out", str(out),
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    for name in ("results.csv", "results.parquet", "report.md", "index.html"):
+        assert (out / name).is_file(), name
+    again = rigidbench(
+        "report", "--cases", "free_spin_cube", "--engines", "reference", "pybullet", "--quick",
+        "--out", str(out),
+    )  # fmt: skip
+    assert "0 computed" in again.stdout
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--engines", "warp"], "unknown engine 'warp'"),
+        (["--cases", "nope"], "unknown case 'nope'"),
+        (["--executor", "dask"], "expected --scheduler ADDRESS"),
+        (["--jobs", "0"], "expected a number >= 1"),
+    ],
+)
+def test_report_bad_input(args, message, tmp_path):
+    proc = rigidbench("report", "--quick", "--out", str(tmp_path / "out"), *args)
+    assert proc.returncode == 2
+    assert message in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "out" / "report.md").exists()

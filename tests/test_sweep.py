@@ -116,3 +116,34 @@ def test_dask_executor_on_a_local_cluster(tmp_path):
     left = result.results[cols].sort_values(cols[:4]).reset_index(drop=True)
     right = local.results[cols].sort_values(cols[:4]).reset_index(drop=True)
     assert left.equals(right)  # same physics wherever it ran
+
+
+def test_fitted_orders_on_tumbling_box_from_the_results_table(tmp_path):
+    """The issue's gate: about 1 for MuJoCo Euler, 4 for MuJoCo RK4, 2 for reference splitting."""
+    from reports.convergence import fit_orders
+
+    scene = CATALOG["tumbling_box"]
+    runs = {
+        ("mujoco", "Euler"): (0.4, 0.2, 0.1),  # dt 0.004 to 0.001: errors 8 to 2 deg
+        ("mujoco", "RK4"): (2.0, 1.0, 0.5),
+        ("reference", "splitting"): (2.0, 1.0, 0.5),
+    }
+    specs = [
+        spec
+        for (engine, integrator), factors in runs.items()
+        for spec in plan([scene], [engine], repeats=1, dt_factors=factors)
+        if spec.integrator == integrator
+    ]
+    result = run_sweep(specs, ResultsCache(tmp_path), LocalExecutor(2), progress=False)
+    fits = fit_orders(result.results, result.orders).set_index(["engine", "integrator"])
+    for (engine, integrator), expected in [
+        (("mujoco", "Euler"), 1),
+        (("mujoco", "RK4"), 4),
+        (("reference", "splitting"), 2),
+    ]:
+        order = fits.loc[(engine, integrator), "order"]
+        assert abs(order - expected) < ORDER_SLACK, f"{engine}/{integrator}: fitted {order:.3f}"
+
+
+# Fitted orders must lie within this of the nominal ones (as in tests/test_engines.py).
+ORDER_SLACK = 0.3

@@ -1,0 +1,132 @@
+"""Convergence in dt, Pareto fronts and the cost of reaching a tolerance, from sweep results.
+
+Inputs are the tidy results of a sweep (`comparators.sweep.RESULT_COLUMNS`): one row per run,
+errors are maxima over the run, `orientation_error_deg` in degrees, `position_error` in m,
+`wall_s` the stepping time in s.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+# The asymptotic range of an orientation error, where error ~ C dt^p holds.
+# Floor: each step rounds the orientation by ~1e-16 rad (~1e-14 deg); over 1e3-1e5 steps that
+# accumulates to at most ~1e-11 deg, so above 1e-9 deg rounding is under 1 % of the error.
+ERROR_FLOOR_DEG = 1e-9
+# Ceiling: beyond ~30 deg the error stops growing like dt^p: it saturates (the largest possible
+# angle is 180 deg) and near 180 deg it measures a different flip pattern, not truncation.
+ERROR_CEILING_DEG = 30.0
+# A slope from two points always fits perfectly; three is the least that can show a bad fit.
+MIN_FIT_POINTS = 3
+# Position errors below this are rounding: a COM coordinate of 1-10 m carries ~1e-15 m per step,
+# ~1e-13 m over 1e3-1e5 steps. Free flight does not saturate, so position has no ceiling.
+POSITION_FLOOR_M = 1e-12
+
+KEYS = ["case", "engine", "integrator"]
+
+
+def fit_power_law(dt: np.ndarray, error: np.ndarray, floor: float, ceiling: float) -> dict:
+    """Least-squares slope of log(error) against log(dt) over floor <= error <= ceiling.
+
+    Returns order (the slope), r2 (coefficient of determination in log space), points (used),
+    dt_min and dt_max (s, of the points used) and note ("" when the fit exists, else why not).
+    """
+    dt, error = np.asarray(dt, dtype=float), np.asarray(error, dtype=float)
+    used = np.isfinite(error) & (error >= floor) & (error <= ceiling) & (dt > 0)
+    out = {"order": np.nan, "r2": np.nan, "points": int(used.sum())}
+    out["dt_min"] = float(dt[used].min()) if used.any() else np.nan
+    out["dt_max"] = float(dt[used].max()) if used.any() else np.nan
+    if len(np.unique(dt[used])) < MIN_FIT_POINTS:
+        out["note"] = f"{out['points']} run(s) in the fit range, need {MIN_FIT_POINTS} dt"
+        return out
+    x, y = np.log(dt[used]), np.log(error[used])
+    slope, intercept = np.polyfit(x, y, 1)
+    residual = y - (slope * x + intercept)
+    spread = ((y - y.mean()) ** 2).sum()
+    out.update(order=float(slope), note="")
+    out["r2"] = float(1.0 - (residual**2).sum() / spread) if spread > 0 else np.nan
+    return out
+
+
+def _position_fit(dt: np.ndarray, error: np.ndarray) -> dict:
+    fit = fit_power_law(dt, error, POSITION_FLOOR_M, np.inf)
+    finite = error[np.isfinite(error)]
+    if len(finite) and (finite < POSITION_FLOOR_M).all():
+        fit["note"] = "exact"
+    return {f"position_{k}": v for k, v in fit.items()}
+
+
+def fit_orders(results: pd.DataFrame, orders: dict[tuple[str, str], int]) -> pd.DataFrame:
+    """Observed convergence order in dt per (case, engine, integrator).
+
+    `orders` maps (engine, integrator) to the expected order. Only runs with verdict "ok" count;
+    orientation errors (deg) are fitted inside [ERROR_FLOOR_DEG, ERROR_CEILING_DEG], position
+    errors (m) above POSITION_FLOOR_M. Columns: case, engine, integrator, expected_order,
+    order, r2, points, dt_min, dt_max (s), note, and the same prefixed `position_` for
+    position errors (note "exact" when every position error is below POSITION_FLOOR_M).
+    """
+    rows = []
+    for (case, engine, integrator), runs in results.groupby(KEYS, sort=False):
+        valid = runs[runs["verdict"] == "ok"]
+        dt = valid["dt"].to_numpy(float)
+        error = valid["orientation_error_deg"].to_numpy(float)
+        fit = fit_power_law(dt, error, ERROR_FLOOR_DEG, ERROR_CEILING_DEG)
+        if not np.isfinite(error).any():
+            fit["note"] = "no valid run with an orientation error"
+        row = {"case": case, "engine": engine, "integrator": integrator}
+        row["expected_order"] = orders.get((engine, integrator), np.nan)
+        rows.append(row | fit | _position_fit(dt, valid["position_error"].to_numpy(float)))
+    return pd.DataFrame(rows)
+
+
+def pareto_front(df: pd.DataFrame, x: str, y: str) -> pd.DataFrame:
+    """The rows of `df` no other row dominates (another row with x and y both <= and one <).
+
+    Rows with a non-finite x or y are left out; exact duplicates keep one. Sorted by x, with
+    y decreasing along the front; the original index is kept.
+    """
+    finite = df[np.isfinite(df[x].astype(float)) & np.isfinite(df[y].astype(float))]
+    ordered = finite.sort_values([x, y], kind="stable")
+    best_before = ordered[y].cummin().shift(1, fill_value=np.inf)
+    return ordered[ordered[y] < best_before]
+
+
+def cost_to_tolerance(
+    results: pd.DataFrame, tolerances: tuple[float, ...] = (1e-2, 1e-4, 1e-6)
+) -> pd.DataFrame:
+    """Per case and engine, the cheapest run reaching each orientation tolerance (deg).
+
+    Cost is stepping wall time per simulated second (`wall_s / duration`, s/s), among the
+    engine's valid runs (any integrator, any dt) with orientation_error_deg <= tolerance.
+    Only cases whose reference is "exact". Columns: case, engine, tolerance_deg,
+    cost_s_per_s (NaN when not reached), integrator, dt (s).
+    """
+    exact = results[results["reference"] == "exact"]
+    rows = []
+    for (case, engine), runs in exact.groupby(["case", "engine"], sort=False):
+        valid = runs[(runs["verdict"] == "ok") & np.isfinite(runs["wall_s"].astype(float))]
+        cost = valid["wall_s"] / valid["duration"]
+        for tol in tolerances:
+            reached = cost[valid["orientation_error_deg"] <= tol]
+            row = {"case": case, "engine": engine, "tolerance_deg": tol}
+            if reached.empty:
+                row |= {"cost_s_per_s": np.nan, "integrator": None, "dt": np.nan}
+            else:
+                best = reached.idxmin()
+                row |= {"cost_s_per_s": float(reached[best])}
+                row |= {"integrator": valid.at[best, "integrator"], "dt": valid.at[best, "dt"]}
+            rows.append(row)
+    columns = ["case", "engine", "tolerance_deg", "cost_s_per_s", "integrator", "dt"]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def lowest_front(df: pd.DataFrame, x: str, y: str, by: str) -> pd.Series:
+    """At each budget (every distinct finite x), which `by` group reaches the smallest y with
+    rows costing at most that budget. Index: budget; values: the group's name."""
+    finite = df[np.isfinite(df[x].astype(float)) & np.isfinite(df[y].astype(float))]
+    winners = {}
+    for budget in np.unique(finite[x]):
+        within = finite[finite[x] <= budget]
+        winners[budget] = within.loc[within[y].idxmin(), by]
+    return pd.Series(winners, name=by, dtype=object)

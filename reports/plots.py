@@ -1,0 +1,246 @@
+"""The report's figures, one PNG per case and kind, 800 px wide.
+
+Every figure colours a run by its engine and marks it (marker and line style) by its integrator,
+the same in every figure (`run_style`). Figures are `matplotlib.figure.Figure` objects rendered
+by Agg, never pyplot's: nothing is registered globally, so nothing stays open after saving.
+Inputs are the rows of one case from a sweep's results (`comparators.sweep.RESULT_COLUMNS`).
+"""
+
+from __future__ import annotations
+
+import zlib
+from pathlib import Path
+
+import matplotlib
+import numpy as np
+import pandas as pd
+from matplotlib.cm import ScalarMappable
+from matplotlib.colors import LogNorm, to_rgba
+from matplotlib.figure import Figure
+from matplotlib.patches import Patch
+from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+from cases.scene import Scene
+from comparators.engine import ENGINES
+from comparators.metrics import conserved_quantities
+from comparators.trajectory import Trajectory, atomic_path
+from reports.convergence import ERROR_CEILING_DEG, ERROR_FLOOR_DEG, pareto_front
+
+WIDTH_IN, DPI = 8.0, 100  # 800 px wide
+ENGINE_COLOURS = matplotlib.colormaps["tab10"].colors
+MARKERS = "osD^vPX*<>"
+LINESTYLES = ["-", "--", "-.", ":"]
+# Relative drifts below double-precision rounding (and the exact 0 at t = 0) cannot be drawn
+# on a log axis; they are drawn at this floor, which the figure states.
+DRIFT_FLOOR = 1e-16
+SHORT_RANGE = 2.0  # decades: a log axis this short gets ticks at 1, 2 and 5 per decade
+ERROR = "orientation_error_deg"
+COST = "cost_s_per_s"  # stepping wall time per simulated second
+PAIR = ["engine", "integrator"]
+ERROR_CMAP = matplotlib.colormaps["viridis"]
+# Verdict colours stay clear of viridis: white, light grey, red, dark grey.
+VERDICT_COLOURS = {"no run": "white", "ok": "#e0e0e0", "diverged": "#d62728", "failed": "#404040"}
+
+
+def _index(name: str, known: list[str]) -> int:
+    """Position of `name` in `known`; unknown names get a stable slot after the known ones."""
+    return known.index(name) if name in known else len(known) + zlib.crc32(name.encode()) % 7
+
+
+def run_style(engine: str, integrator: str) -> dict:
+    """matplotlib keyword arguments for one engine/integrator: colour by engine, marker and line
+    style by integrator (case-insensitive, so MuJoCo's RK4 and the reference's rk4 match)."""
+    engines = list(ENGINES)
+    integrators = list(dict.fromkeys(i.lower() for e in ENGINES.values() for i in e.integrators))
+    k = _index(integrator.lower(), integrators)
+    return {
+        "color": ENGINE_COLOURS[_index(engine, engines) % len(ENGINE_COLOURS)],
+        "marker": MARKERS[k % len(MARKERS)],
+        "linestyle": LINESTYLES[k % len(LINESTYLES)],
+    }
+
+
+def _figure(height_in: float, nrows: int = 1) -> tuple[Figure, np.ndarray]:
+    fig = Figure(figsize=(WIDTH_IN, height_in), dpi=DPI, layout="constrained")
+    axes = fig.subplots(nrows, 1, sharex=True, squeeze=False)[:, 0]
+    return fig, axes
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=DPI)
+    return path
+
+
+def _legend_below(fig: Figure, ncols: int = 3, **kwargs) -> None:
+    fig.legend(loc="outside lower center", ncols=ncols, fontsize=8, frameon=False, **kwargs)
+
+
+def _log_axes(ax, dts: np.ndarray | None = None, x: pd.Series | None = None) -> None:
+    """Log-log axes with a light grid; x ticks at the swept dts (s) when given, else at 1, 2
+    and 5 per decade when the `x` values span less than SHORT_RANGE decades."""
+    ax.set(xscale="log", yscale="log")
+    ax.grid(True, which="major", alpha=0.3)
+    ax.xaxis.set_minor_formatter(NullFormatter())  # labelled minor ticks collide at 800 px
+    if dts is not None:
+        ax.set_xticks(dts, [f"{dt:g}" for dt in dts])
+    elif x is not None and np.log10(x.max() / x.min()) < SHORT_RANGE:
+        ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+
+
+def valid_costs(runs: pd.DataFrame) -> pd.DataFrame:
+    """Valid runs with a positive orientation error and a finite stepping time, with their
+    COST: stepping wall time per simulated second (s/s)."""
+    ok = runs[(runs["verdict"] == "ok") & (runs[ERROR] > 0) & np.isfinite(runs["wall_s"])]
+    return ok.assign(**{COST: ok["wall_s"] / ok["duration"]})
+
+
+def _relative_deviation(values: np.ndarray) -> np.ndarray:
+    """|f(t) - f(0)| / |f(0)| per sample for (S,) or (S, k) values; absolute when f(0) = 0."""
+    values = values.reshape(len(values), -1)
+    deviation = np.linalg.norm(values - values[0], axis=1)
+    scale = np.linalg.norm(values[0])
+    return deviation / scale if scale > 0 else deviation
+
+
+def _closest_runs(runs: pd.DataFrame, keys: set[str], dt: float) -> pd.DataFrame:
+    """Per engine/integrator, the valid run with a trajectory whose dt is closest to `dt` (on a
+    log scale), in the order of `runs`."""
+    have = runs[runs["key"].isin(keys) & (runs["verdict"] == "ok")]
+    distance = np.abs(np.log(have["dt"].to_numpy(float) / dt))
+    have = have.assign(_distance=distance).sort_values("_distance", kind="stable")
+    return have.groupby(PAIR, sort=False).head(1).drop(columns="_distance").sort_index()
+
+
+def plot_drift(
+    runs: pd.DataFrame, trajectories: dict[str, Trajectory], scene: Scene, path: Path
+) -> Path | None:
+    """Relative energy and angular-momentum error against time (s), log y, one line per
+    engine/integrator at the scene's default dt (or the closest swept). None: no trajectory."""
+    chosen = _closest_runs(runs, set(trajectories), scene.dt)
+    if chosen.empty:
+        return None
+    fig, (ax_e, ax_l) = _figure(6.5, nrows=2)
+    one_dt = chosen["dt"].nunique() == 1
+    for run in chosen.itertuples():
+        c = conserved_quantities(trajectories[run.key], scene)
+        label = f"{run.engine} {run.integrator}" + ("" if one_dt else f" (dt {run.dt:g} s)")
+        style = run_style(run.engine, run.integrator) | {"markevery": 0.1, "markersize": 4}
+        for ax, values in ((ax_e, c["energy"]), (ax_l, c[["Lx", "Ly", "Lz"]])):
+            drift = np.maximum(_relative_deviation(values.to_numpy()), DRIFT_FLOOR)
+            ax.plot(c["t"], drift, label=label if ax is ax_e else None, **style)
+    ax_e.set_ylabel("|E(t) - E(0)| / |E(0)|")
+    ax_l.set_ylabel("|L(t) - L(0)| / |L(0)|")
+    ax_l.set_xlabel(f"t (s); values below {DRIFT_FLOOR:g}, including 0, drawn at {DRIFT_FLOOR:g}")
+    for ax in (ax_e, ax_l):
+        ax.set_yscale("log")
+        ax.grid(True, which="major", alpha=0.3)
+    at = f"dt = {chosen['dt'].iloc[0]:g} s" if one_dt else f"dt closest to {scene.dt:g} s"
+    ax_e.set_title(f"{scene.name}: energy and angular momentum drift, {at}", fontsize=10)
+    _legend_below(fig, ncols=4)
+    return _save(fig, path)
+
+
+def _order_label(fits: pd.DataFrame, engine: str, integrator: str) -> str:
+    fit = fits[(fits["engine"] == engine) & (fits["integrator"] == integrator)]
+    if fit.empty:
+        return f"{engine} {integrator}"
+    fit = fit.iloc[0]
+    expected = "" if pd.isna(fit["expected_order"]) else f" (expected {fit['expected_order']:g})"
+    order = "no fit" if pd.isna(fit["order"]) else f"order {fit['order']:.2f}"
+    return f"{engine} {integrator}: {order}{expected}"
+
+
+def plot_convergence(runs: pd.DataFrame, fits: pd.DataFrame, path: Path) -> Path | None:
+    """Max orientation error (deg) against dt (s), log-log, one line per engine/integrator,
+    the fitted order (`reports.convergence.fit_orders` rows) in the legend. None: no errors."""
+    data = valid_costs(runs)
+    if data.empty:
+        return None
+    fig, (ax,) = _figure(5.5)
+    for (engine, integrator), pair in data.groupby(PAIR, sort=False):
+        pair = pair.sort_values("dt")
+        label = _order_label(fits, engine, integrator)
+        ax.plot(pair["dt"], pair[ERROR], label=label, **run_style(engine, integrator))
+    fit_range = {"color": "grey", "linewidth": 0.8, "linestyle": (0, (2, 4))}
+    ax.axhline(ERROR_FLOOR_DEG, **fit_range)
+    ax.axhline(
+        ERROR_CEILING_DEG,
+        label=f"fit range {ERROR_FLOOR_DEG:g} to {ERROR_CEILING_DEG:g} deg",
+        **fit_range,
+    )
+    _log_axes(ax, np.sort(runs["dt"].unique()))
+    ax.set(xlabel="dt (s)", ylabel="max orientation error (deg)")
+    ax.set_title(f"{runs['case'].iloc[0]}: orientation error against dt", fontsize=10)
+    _legend_below(fig, ncols=2)  # long labels
+    return _save(fig, path)
+
+
+def plot_work_precision(runs: pd.DataFrame, path: Path) -> Path | None:
+    """Max orientation error (deg) against stepping wall time per simulated second (s/s),
+    log-log; each engine's Pareto front as a step line. None: no valid run with an error."""
+    data = valid_costs(runs)
+    if data.empty:
+        return None
+    fig, (ax,) = _figure(5.5)
+    for (engine, integrator), pair in data.groupby(PAIR, sort=False):
+        style = run_style(engine, integrator) | {"linestyle": "none"}
+        ax.plot(pair[COST], pair[ERROR], label=f"{engine} {integrator}", **style)
+    for engine, own in data.groupby("engine", sort=False):
+        front = pareto_front(own, COST, ERROR)
+        line = {"color": run_style(engine, "")["color"], "linewidth": 2, "alpha": 0.5}
+        ax.step(front[COST], front[ERROR], where="post", label=f"{engine} Pareto front", **line)
+    _log_axes(ax, x=data[COST])
+    ax.set(xlabel="stepping wall time per simulated second (s/s)")
+    ax.set(ylabel="max orientation error (deg)")
+    ax.set_title(f"{runs['case'].iloc[0]}: work-precision (lower left is better)", fontsize=10)
+    _legend_below(fig)
+    return _save(fig, path)
+
+
+def _cell_label(value: float) -> str:
+    """1.8e-09 -> 1.8e-9: short enough for a map cell."""
+    mantissa, exponent = f"{value:.1e}".split("e")
+    return f"{mantissa}e{int(exponent)}"
+
+
+def _cell(verdict: str, error: float, norm: LogNorm | None) -> tuple[tuple, str]:
+    """A map cell's colour (RGBA) and label: valid runs with an error by its magnitude."""
+    if verdict == "ok" and error > 0 and norm is not None:
+        return ERROR_CMAP(norm(error)), _cell_label(error)
+    category = "failed" if verdict.startswith("failed") else verdict
+    category = category if category in VERDICT_COLOURS else "failed"
+    return to_rgba(VERDICT_COLOURS[category]), "" if category == "no run" else category
+
+
+def plot_stability(runs: pd.DataFrame, path: Path) -> Path:
+    """Engine/integrator (rows) x dt (s, columns) coloured by verdict; valid runs with an error
+    by its magnitude (deg, log colour scale), each cell labelled."""
+    pairs = list(dict.fromkeys(zip(runs["engine"], runs["integrator"], strict=True)))
+    dts = np.sort(runs["dt"].unique())
+    errors = runs.loc[(runs["verdict"] == "ok") & (runs[ERROR] > 0), ERROR]
+    norm = LogNorm(errors.min(), max(errors.max(), 10 * errors.min())) if len(errors) else None
+    face = np.ones((len(pairs), len(dts), 4))  # white: no run
+    fig, (ax,) = _figure(1.8 + 0.45 * len(pairs))
+    for run in runs.itertuples():
+        i, j = pairs.index((run.engine, run.integrator)), int(np.searchsorted(dts, run.dt))
+        face[i, j], text = _cell(run.verdict, getattr(run, ERROR), norm)
+        dark = face[i, j, :3] @ (0.299, 0.587, 0.114) < 0.5  # perceived luminance
+        colour = "white" if dark else "black"
+        ax.text(j, i, text, ha="center", va="center", fontsize=8, color=colour)
+    ax.imshow(face, aspect="auto")
+    if norm is not None:
+        fig.colorbar(ScalarMappable(norm, ERROR_CMAP), ax=ax, label="max orientation error (deg)")
+    ax.set_xticks(range(len(dts)), [f"{dt:g}" for dt in dts])
+    ax.set_yticks(range(len(pairs)), [f"{e} {i}" for e, i in pairs])
+    ax.set_xlabel("dt (s)")
+    ax.set_title(f"{runs['case'].iloc[0]}: stability map", fontsize=10)
+    legend = {"ok": "ok, no error measured"}
+    handles = [
+        Patch(facecolor=colour, edgecolor="grey", label=legend.get(name, name))
+        for name, colour in VERDICT_COLOURS.items()
+    ]
+    _legend_below(fig, handles=handles, ncols=len(handles))
+    return _save(fig, path)

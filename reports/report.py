@@ -1,0 +1,545 @@
+"""The report: a sweep's results as tables, figures, `report.md` and a self-contained `index.html`.
+
+`write_report` writes into one directory: results.parquet and results.csv (one row per run,
+`RESULT_COLUMNS`), figures/*.png, report.md (renders on GitHub) and index.html (the same text,
+figures referenced beside it). Every number comes from the `SweepResult`.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+from collections.abc import Callable
+from datetime import UTC, datetime
+from html.parser import HTMLParser
+from pathlib import Path
+from urllib.parse import unquote, urlparse
+
+import markdown
+import numpy as np
+import pandas as pd
+
+from comparators.engine import ENGINES
+from comparators.sweep import RESULT_COLUMNS, SweepResult
+from comparators.trajectory import atomic_path
+from reports import plots
+from reports.convergence import (
+    ERROR_CEILING_DEG,
+    ERROR_FLOOR_DEG,
+    MIN_FIT_POINTS,
+    POSITION_FLOOR_M,
+    cost_to_tolerance,
+    fit_orders,
+    lowest_front,
+)
+
+FIGURES = "figures"
+TOLERANCES_DEG = (1e-2, 1e-4, 1e-6)
+MISSING = "–"  # a cell with no value (not measured, or not relevant to the run)
+
+# results column -> metrics-table header, in table order
+METRIC_HEADERS = {
+    "engine": "engine",
+    "integrator": "integrator",
+    "dt": "dt (s)",
+    "steps_per_s": "steps/s",
+    "realtime_factor": "realtime factor",
+    "energy_drift": "energy drift",
+    "angular_momentum_drift": "L drift",
+    "position_error": "position error (m)",
+    "orientation_error_deg": "orientation error (deg)",
+    "rest_com_height": "rest height (m)",
+    "shape_error": "shape error",
+    "verdict": "verdict",
+}
+SHOWN_WHERE_MEASURED = ("rest_com_height", "shape_error")  # columns dropped when all NaN
+
+CSS = """
+body { font-family: system-ui, sans-serif; max-width: 60rem; margin: 2rem auto; padding: 0 1rem;
+       line-height: 1.45; color: #222; }
+table { border-collapse: collapse; margin: 0.8rem 0; font-size: 0.9rem; }
+th, td { border: 1px solid #bbb; padding: 0.2rem 0.5rem; }
+th { background: #f0f0f0; }
+td { font-variant-numeric: tabular-nums; }
+img { max-width: 100%; }
+code { background: #f4f4f4; padding: 0 0.2rem; }
+"""
+
+PAGE = """<!DOCTYPE html>
+<html lang="en">
+<head>
+<meta charset="utf-8">
+<title>{title}</title>
+<style>{css}</style>
+</head>
+<body>
+{body}
+</body>
+</html>
+"""
+
+
+# ---- cells and tables --------------------------------------------------------------------
+
+
+def _escape(text: object) -> str:
+    """Text safe in a Markdown table cell, on GitHub and in Python-Markdown."""
+    text = str(text).replace("\n", " ")
+    for char in "\\`*_[]":
+        text = text.replace(char, "\\" + char)
+    return text.replace("|", "\\|").replace("<", "&lt;")
+
+
+def _missing(value: object) -> bool:
+    return value is None or (isinstance(value, float) and np.isnan(value))
+
+
+def _number(value: object) -> str:
+    """3 significant digits; NaN and None as MISSING."""
+    return MISSING if _missing(value) else f"{value:.3g}"
+
+
+def _text(value: object) -> str:
+    return MISSING if _missing(value) else _escape(value)
+
+
+def markdown_table(df: pd.DataFrame, formats: dict[str, Callable] | None = None) -> str:
+    """A GitHub pipe table: numeric columns to 3 significant digits and right-aligned, text
+    escaped, NaN as MISSING. `formats` overrides the formatter of named columns."""
+    formats = formats or {}
+    cells, align = pd.DataFrame(index=df.index), []
+    for col in df.columns:
+        numeric = pd.api.types.is_numeric_dtype(df[col]) and not pd.api.types.is_bool_dtype(df[col])
+        cells[col] = df[col].map(formats.get(col, _number if numeric else _text))
+        align.append("right" if numeric else "left")
+    return cells.to_markdown(index=False, disable_numparse=True, colalign=align)
+
+
+# ---- files ----------------------------------------------------------------------------------
+
+
+def _write_text(path: Path, text: str) -> Path:
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(text, encoding="utf-8")
+    return path
+
+
+def write_results(results: pd.DataFrame, out: Path) -> dict[str, Path]:
+    """results.parquet and results.csv: one row per run, exactly `RESULT_COLUMNS`."""
+    missing = [c for c in RESULT_COLUMNS if c not in results]
+    if missing:
+        raise ValueError(f"results lack column(s) {missing}: expected RESULT_COLUMNS")
+    table = results[RESULT_COLUMNS].reset_index(drop=True)
+    paths = {"results.parquet": out / "results.parquet", "results.csv": out / "results.csv"}
+    with atomic_path(paths["results.parquet"]) as tmp:
+        table.to_parquet(tmp, index=False)
+    with atomic_path(paths["results.csv"]) as tmp:
+        table.to_csv(tmp, index=False)
+    return paths
+
+
+def expected_orders(result: SweepResult) -> dict[tuple[str, str], int]:
+    """The sweep's expected orders, completed by what each registered engine declares."""
+    declared = {(n, i): p for n, e in ENGINES.items() for i, p in e.orders.items()}
+    return declared | result.orders
+
+
+def write_figures(result: SweepResult, fits: pd.DataFrame, out: Path) -> dict[tuple, Path]:
+    """All figures, by (case, kind); kinds without anything to draw are left out."""
+    figures = {}
+    for case, runs in result.results.groupby("case", sort=False):
+        own_fits = fits[fits["case"] == case]
+        path = out / FIGURES
+        drawn = {
+            "drift": plots.plot_drift(
+                runs, result.trajectories, result.scenes[case], path / f"{case}_drift.png"
+            ),
+            "convergence": plots.plot_convergence(runs, own_fits, path / f"{case}_convergence.png"),
+            "work_precision": plots.plot_work_precision(runs, path / f"{case}_work_precision.png"),
+            "stability": plots.plot_stability(runs, path / f"{case}_stability.png"),
+        }
+        figures |= {(case, kind): p for kind, p in drawn.items() if p is not None}
+    return figures
+
+
+# ---- sections ---------------------------------------------------------------------------------
+
+
+def _image(figures: dict, case: str, kind: str, out: Path, alt: str) -> str:
+    path = figures.get((case, kind))
+    if path is None:
+        return f"*No {alt} figure: no valid run has the data it needs.*"
+    return f"![{alt}, {case}]({path.relative_to(out).as_posix()})"
+
+
+def _header(result: SweepResult, command: str) -> list[str]:
+    when = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    runs = len(result.results)
+    return [
+        "# rigidbench report",
+        "",
+        f"Generated {when} by `{command}`.",
+        f"The sweep took {result.elapsed_s:.3g} s: {runs} runs, {result.computed} computed now "
+        f"and {result.cached} taken from the results cache; executor: {_escape(result.executor)}.",
+        "",
+        "Sections: how the timings were measured; the catalog; per case its metrics, drift over "
+        "time, convergence in dt, work-precision and stability map; cost to reach a tolerance; "
+        "the parity manifest; machine and versions. All numbers are in `results.csv` "
+        "(one row per run).",
+    ]
+
+
+def _timing(results: pd.DataFrame) -> list[str]:
+    repeats = results["repeats"].dropna().astype(int)
+    n = f"{repeats.min()}" if repeats.nunique() <= 1 else f"{repeats.min()} to {repeats.max()}"
+    setup = results.groupby("engine", sort=False)["setup_s"].agg(["count", "median", "max"])
+    setup = setup.reset_index().rename(
+        columns={"count": "runs", "median": "setup_s median (s)", "max": "setup_s max (s)"}
+    )
+    return [
+        "## How the timings were measured",
+        "",
+        "Times are stepping only (`wall_s`): building the engine's model and JIT compilation "
+        "are timed apart as `setup_s` (below). Each `wall_s` is the median of "
+        f"{n} repeat(s) (min and max in `results.csv` as `wall_min_s`, `wall_max_s`), engines "
+        "are interleaved so that machine load falls on all of them alike, and only valid runs "
+        "(finite, not diverged) are timed. steps/s = steps / `wall_s`; realtime factor = "
+        "simulated seconds per stepping second (above 1 is faster than real time).",
+        "",
+        markdown_table(setup),
+    ]
+
+
+def _catalog(result: SweepResult) -> list[str]:
+    rows = [
+        {
+            "case": name,
+            "description": scene.description,
+            "models": scene.modelled(),
+            "tags": ", ".join(scene.tags),
+            "reference solution": result.references.get(name, MISSING),
+        }
+        for name, scene in result.scenes.items()
+    ]
+    return [
+        "## Catalog",
+        "",
+        "How to read: what each case is, what an engine has to model for it, and what its errors "
+        "are measured against (exact: closed form; self-convergence: the same engine and "
+        "integrator at the finest dt).",
+        "",
+        markdown_table(pd.DataFrame(rows)),
+    ]
+
+
+def _metrics(runs: pd.DataFrame) -> str:
+    headers = {
+        col: head
+        for col, head in METRIC_HEADERS.items()
+        if col not in SHOWN_WHERE_MEASURED or runs[col].notna().any()
+    }
+    pairs = list(zip(runs["engine"], runs["integrator"], strict=True))
+    rank = {pair: k for k, pair in enumerate(dict.fromkeys(pairs))}
+    table = runs.assign(_pair=[rank[p] for p in pairs])
+    table = table.sort_values(["_pair", "dt"], ascending=[True, False], kind="stable")
+    return markdown_table(table[list(headers)].rename(columns=headers))
+
+
+def _fit_table(fits: pd.DataFrame) -> str:
+    def dt_range(row) -> str:
+        return MISSING if np.isnan(row.dt_min) else f"{row.dt_min:.3g} to {row.dt_max:.3g}"
+
+    def position(row) -> str:
+        return _number(row.position_order) if np.isfinite(row.position_order) else row.position_note
+
+    table = pd.DataFrame(
+        {
+            "engine": fits["engine"],
+            "integrator": fits["integrator"],
+            "fitted order": fits["order"],
+            "expected": fits["expected_order"].astype(float),
+            "R²": fits["r2"],
+            "points": fits["points"],
+            "dt range (s)": [dt_range(r) for r in fits.itertuples()],
+            "position order": [position(r) for r in fits.itertuples()],
+            "note": fits["note"],
+        }
+    )
+    return markdown_table(table)
+
+
+def _pareto_sentence(runs: pd.DataFrame) -> str:
+    data = plots.valid_costs(runs)
+    if data.empty:
+        return "No valid run with a nonzero orientation error: nothing to rank."
+    best = data.loc[data[plots.ERROR].idxmin()]
+    smallest = (
+        f"The smallest error, {best[plots.ERROR]:.3g} deg, is {best['engine']} "
+        f"{best['integrator']} at dt {best['dt']:.3g} s ({best[plots.COST]:.3g} s/s)."
+    )
+    if best[plots.ERROR] < ERROR_FLOOR_DEG:
+        smallest += (
+            f" Errors below {ERROR_FLOOR_DEG:g} deg are rounding: differences among them say "
+            "nothing about accuracy."
+        )
+    if data["engine"].nunique() == 1:
+        return f"Only {data['engine'].iloc[0]} has valid runs with an error here. {smallest}"
+    counts = lowest_front(data, plots.COST, plots.ERROR, "engine").value_counts()
+    return (
+        f"Lowest front: **{counts.index[0]}**, which reaches the smallest error at "
+        f"{counts.iloc[0]} of {counts.sum()} time budgets (a budget is each valid run's cost; "
+        "an engine's error at a budget is the smallest error among its runs costing no more). "
+        + smallest
+    )
+
+
+def _case(result: SweepResult, case: str, fits: pd.DataFrame, figures: dict, out: Path):
+    scene = result.scenes[case]
+    runs = result.results[result.results["case"] == case]
+    reference = result.references.get(case, MISSING)
+    lines = [
+        f"## Case `{case}`",
+        "",
+        f"{_escape(scene.description)} Modelled: {_escape(scene.modelled())}. "
+        f"Errors against: {_escape(reference)}.",
+    ]
+    if scene.expected is not None and scene.expected.rest_com_height is not None:
+        lines.append(f"Expected rest height of the COM: {scene.expected.rest_com_height:g} m.")
+    if runs.empty:
+        return [*lines, "", "No runs."]
+    return [
+        *lines,
+        "",
+        "### Metrics",
+        "",
+        "How to read: drifts are relative maxima over the run (0 is exact conservation), errors "
+        "the largest over the run against the reference; steps/s and realtime factor are "
+        "stepping only, higher is faster.",
+        "",
+        _metrics(runs),
+        "",
+        "### Drift over time",
+        "",
+        "How to read: relative error of total energy and angular momentum against time at the "
+        "case's default dt (or the closest swept); a bounded wobble is what a symplectic "
+        "integrator gives, a steady climb is secular drift.",
+        "",
+        _image(figures, case, "drift", out, "energy and angular momentum drift"),
+        "",
+        "### Convergence in dt",
+        "",
+        "How to read: on log-log axes an error ~ dt^p is a straight line of slope p, the "
+        "fitted order; fits use valid runs with errors between "
+        f"{ERROR_FLOOR_DEG:g} deg (rounding below) and {ERROR_CEILING_DEG:g} deg (saturation "
+        f"above) and need {MIN_FIT_POINTS} such dt. R² near 1: a clean power law. Position "
+        f'order "exact": every position error is below {POSITION_FLOOR_M:g} m (rounding).',
+        "",
+        _image(figures, case, "convergence", out, "orientation error against dt"),
+        "",
+        _fit_table(fits[fits["case"] == case]),
+        "",
+        "### Work-precision",
+        "",
+        "How to read: lower left is better, less error for less stepping time; each engine's "
+        "Pareto front is its best error for a given time.",
+        "",
+        _image(figures, case, "work_precision", out, "orientation error against stepping time"),
+        "",
+        _pareto_sentence(runs),
+        "",
+        "### Stability map",
+        "",
+        "How to read: where each engine and integrator breaks as dt grows: red diverged, dark "
+        "grey failed; valid runs are coloured by their orientation error.",
+        "",
+        _image(figures, case, "stability", out, "stability map"),
+    ]
+
+
+def _cost(results: pd.DataFrame) -> list[str]:
+    costs = cost_to_tolerance(results, TOLERANCES_DEG)
+    lines = [
+        "## Cost to reach a tolerance",
+        "",
+        "How to read: per case and engine, the least stepping time per simulated second (s/s) "
+        "among its valid runs (any integrator, any dt) whose orientation error stays within "
+        "the tolerance, and which run achieved it; only cases with an exact reference.",
+        "",
+    ]
+    if costs.empty:
+        return [*lines, "No case with an exact reference was swept."]
+
+    def cell(row) -> str:
+        if np.isnan(row.cost_s_per_s):
+            return "not reached"
+        return f"{row.cost_s_per_s:.3g} s/s ({_escape(row.integrator)}, dt {row.dt:.3g} s)"
+
+    costs = costs.assign(cell=[cell(r) for r in costs.itertuples()])
+    table = costs.pivot(index=["case", "engine"], columns="tolerance_deg", values="cell")
+    table = table.reindex(columns=list(TOLERANCES_DEG))
+    table.columns = [f"≤ {tol:g} deg" for tol in table.columns]
+    table = table.reindex(costs[["case", "engine"]].drop_duplicates().itertuples(index=False))
+    return [*lines, markdown_table(table.reset_index(), {c: str for c in table.columns})]
+
+
+def _flatten(settings: dict, prefix: str = "") -> dict[str, str]:
+    """Nested settings as {"a.b": value}; lists and scalars as compact text."""
+    flat = {}
+    for key, value in settings.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            flat |= _flatten(value, name + ".")
+        else:
+            flat[name] = value if isinstance(value, str) else json.dumps(value, default=str)
+    return flat
+
+
+def _representative(runs: pd.DataFrame, trajectories: dict) -> pd.DataFrame:
+    """One run with a trajectory per integrator of one engine, all from the same case and dt
+    where possible: the case and dt of the run whose manifest lists the most settings."""
+    have = runs[runs["key"].isin(trajectories.keys())]
+    if have.empty:
+        return have
+    size = [len(_flatten(trajectories[k].meta.settings)) for k in have["key"]]
+    richest = have.iloc[int(np.argmax(size))]
+    same = (have["case"] == richest["case"]) & (have["dt"] == richest["dt"])
+    ranked = have.assign(_other=~same).sort_values("_other", kind="stable")
+    return ranked.groupby("integrator", sort=False).head(1).drop(columns="_other")
+
+
+def _settings_table(reps: pd.DataFrame, trajectories: dict) -> str:
+    """setting | value; a value that differs between integrators is given per integrator."""
+    flat = {
+        rep.integrator: _flatten(trajectories[rep.key].meta.settings) for rep in reps.itertuples()
+    }
+    names = list(dict.fromkeys(name for settings in flat.values() for name in settings))
+    rows = []
+    for name in names:
+        values = {i: s.get(name, MISSING) for i, s in flat.items()}
+        if len(set(values.values())) == 1:
+            rows.append((name, next(iter(values.values()))))
+        else:
+            rows.append((name, "; ".join(f"{i}: {v}" for i, v in values.items())))
+    return markdown_table(pd.DataFrame(rows, columns=["setting", "value"]))
+
+
+def _parity_status(runs: pd.DataFrame) -> str:
+    failed = runs[runs["verdict"].str.startswith("failed: parity")]
+    if failed.empty:
+        return "passed"
+    return f"failed in {len(failed)} of {len(runs)} runs: {failed['verdict'].iloc[0]}"
+
+
+def _parity(result: SweepResult) -> list[str]:
+    results = result.results
+    status = results.groupby(["engine", "integrator"], sort=False).apply(
+        lambda runs: pd.Series({"runs": len(runs), "parity at t = 0": _parity_status(runs)}),
+        include_groups=False,
+    )
+    lines = [
+        "## Parity manifest",
+        "",
+        "How to read: the parity check confirms, before stepping, that each run's model has the "
+        "scene's mass, inertia, energy, momentum and angular momentum (1e-9 relative); a run "
+        "that fails it has the verdict `failed: parity ...`. Below it, per engine, every "
+        "setting that affects the result, read back from the engine's model (`meta.settings`) "
+        "of one run per integrator.",
+        "",
+        markdown_table(status.reset_index()),
+    ]
+    for engine, runs in results.groupby("engine", sort=False):
+        reps = _representative(runs, result.trajectories)
+        lines += ["", f"### Settings: {engine}", ""]
+        if reps.empty:
+            lines.append("No run produced a trajectory, so no settings were read back.")
+            continue
+        where = ", ".join(
+            f"{r.integrator} on `{r.case}` at dt {r.dt:.3g} s" for r in reps.itertuples()
+        )
+        lines += [
+            f"From the runs: {where}. Settings that depend on the case (contact) or on dt "
+            "differ between runs.",
+            "",
+            _settings_table(reps, result.trajectories),
+        ]
+    return lines
+
+
+def _versions(result: SweepResult) -> list[str]:
+    machine = pd.DataFrame({"item": list(result.machine), "value": list(result.machine.values())})
+    versions = {}
+    for row in result.results.itertuples():
+        traj = result.trajectories.get(row.key)
+        for package, version in (traj.meta.versions if traj else {}).items():
+            versions.setdefault((row.engine, package), set()).add(version)
+    frame = pd.DataFrame(
+        [(e, p, ", ".join(sorted(v))) for (e, p), v in versions.items()],
+        columns=["engine", "package", "version"],
+    )
+    code = ", ".join(sorted(result.results["code_version"].dropna().astype(str).unique()))
+    return [
+        "## Machine and versions",
+        "",
+        "How to read: where the timings were taken, and the library versions each engine's runs "
+        "recorded (`meta.versions`); several versions in one cell mean runs came from different "
+        "installs (for instance from the results cache).",
+        "",
+        markdown_table(machine),
+        "",
+        markdown_table(frame),
+        "",
+        f"Code version(s) of the runs: {_escape(code) or MISSING}.",
+    ]
+
+
+def render_markdown(
+    result: SweepResult, command: str, fits: pd.DataFrame, figures: dict, out: Path
+) -> str:
+    """report.md's text; `figures` by (case, kind), paths under `out`."""
+    parts = [_header(result, command), _timing(result.results), _catalog(result)]
+    parts += [_case(result, case, fits, figures, out) for case in result.scenes]
+    parts += [_cost(result.results), _parity(result), _versions(result)]
+    return "\n".join("\n".join(p) + "\n" for p in parts)
+
+
+def render_html(markdown_text: str, title: str = "rigidbench report") -> str:
+    """index.html: the Markdown converted (tables, fenced code) in a small styled page."""
+    body = markdown.markdown(markdown_text, extensions=["tables", "fenced_code"])
+    return PAGE.format(title=html.escape(title), css=CSS, body=body)
+
+
+def write_report(result: SweepResult, out: Path, command: str) -> dict[str, Path]:
+    """Write results, figures, report.md and index.html into `out`; returns them by name
+    relative to `out` ("results.csv", "figures/tumbling_box_drift.png", ...)."""
+    out = Path(out)
+    (out / FIGURES).mkdir(parents=True, exist_ok=True)
+    written = write_results(result.results, out)
+    fits = fit_orders(result.results, expected_orders(result))
+    figures = write_figures(result, fits, out)
+    text = render_markdown(result, command, fits, figures, out)
+    written["report.md"] = _write_text(out / "report.md", text)
+    written["index.html"] = _write_text(out / "index.html", render_html(text))
+    written |= {p.relative_to(out).as_posix(): p for p in figures.values()}
+    return written
+
+
+class _References(HTMLParser):
+    def __init__(self):
+        super().__init__()
+        self.found: list[str] = []
+
+    def handle_starttag(self, tag, attrs):
+        self.found += [v for k, v in attrs if k in ("src", "href") and v]
+
+
+def missing_references(html_path: Path) -> list[str]:
+    """Local files (src, href) the HTML page refers to that do not exist beside it."""
+    html_path = Path(html_path)
+    parser = _References()
+    parser.feed(html_path.read_text(encoding="utf-8"))
+    local = [
+        ref
+        for ref in parser.found
+        if not urlparse(ref).scheme and not urlparse(ref).netloc and not ref.startswith("#")
+    ]
+    return [ref for ref in local if not (html_path.parent / unquote(urlparse(ref).path)).exists()]

@@ -1,0 +1,247 @@
+"""The report: convergence fits, Pareto fronts, cost to tolerance and the written files.
+
+The sweep result is built here from a handful of real runs, without the sweep machinery:
+`tumbling_box` shortened to 2 s, reference `splitting` and MuJoCo `RK4` and `Euler` at four dt.
+"""
+
+import dataclasses
+import platform
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cases import CATALOG
+from comparators import ENGINES, run
+from comparators.metrics import summarize
+from comparators.sweep import RESULT_COLUMNS, SweepResult
+from reports.convergence import (
+    ERROR_CEILING_DEG,
+    ERROR_FLOOR_DEG,
+    cost_to_tolerance,
+    fit_orders,
+    fit_power_law,
+    pareto_front,
+)
+from reports.report import expected_orders, missing_references, write_report
+
+SCENE = dataclasses.replace(CATALOG["tumbling_box"], duration=2.0)
+DTS = (0.02, 0.01, 0.005, 0.0025)
+PAIRS = [("reference", "splitting"), ("mujoco", "RK4"), ("mujoco", "Euler")]
+# A fitted order within 0.3 of the expected one: on these runs the fits give 2.00 (splitting),
+# 3.97 (RK4) and 0.99 (Euler); 0.3 tells a wrong order (off by 1) from a good one with margin.
+ORDER_ATOL = 0.3
+# Values defined for every valid run of a case with an exact reference: never NaN in the files.
+DEFINED = [
+    "dt",
+    "duration",
+    "steps",
+    "setup_s",
+    "wall_s",
+    "steps_per_s",
+    "realtime_factor",
+    "energy_drift",
+    "angular_momentum_drift",
+    "position_error",
+    "orientation_error_deg",
+]
+
+
+def result_row(traj, scene) -> dict:
+    """One RESULT_COLUMNS row for a run, as the sweep would make it (one repeat, no cache)."""
+    meta = traj.meta
+    summary = summarize(traj, scene)
+    row = dict.fromkeys(RESULT_COLUMNS, np.nan)
+    row |= {k: v for k, v in summary.items() if k in RESULT_COLUMNS}
+    row |= {
+        "duration": meta.duration,
+        "repeats": 1,
+        "wall_min_s": meta.wall_s,
+        "wall_max_s": meta.wall_s,
+        "engine_version": meta.versions.get(meta.engine, meta.versions["rigidbench"]),
+        "code_version": meta.versions["rigidbench"],
+        "key": f"{meta.case}-{meta.engine}-{meta.integrator}-{meta.dt:g}",
+    }
+    return row
+
+
+def build_result(scenes, pairs, dts) -> SweepResult:
+    """Run every scene x (engine, integrator) x dt directly and collect a SweepResult."""
+    rows, trajectories = [], {}
+    for scene in scenes:
+        for engine, integrator in pairs:
+            for dt in dts:
+                traj = run(scene, engine, integrator, dt=dt)
+                row = result_row(traj, scene)
+                rows.append(row)
+                trajectories[row["key"]] = traj
+    results = pd.DataFrame(rows, columns=RESULT_COLUMNS)
+    return SweepResult(
+        scenes={s.name: s for s in scenes},
+        results=results,
+        trajectories=trajectories,
+        references={
+            s.name: results[results["case"] == s.name]["reference"].iloc[0] for s in scenes
+        },
+        elapsed_s=1.0,
+        machine={
+            "cpu": platform.processor() or platform.machine(),
+            "python": platform.python_version(),
+        },
+        executor="in-process loop (test)",
+        computed=len(rows),
+        orders={(e, i): ENGINES[e].orders[i] for e, i in pairs},
+    )
+
+
+@pytest.fixture(scope="module")
+def sweep() -> SweepResult:
+    for engine, _ in PAIRS:
+        if ENGINES[engine].missing:
+            pytest.skip(f"{engine}: {ENGINES[engine].missing}")
+    return build_result([SCENE], PAIRS, DTS)
+
+
+@pytest.fixture(scope="module")
+def report(sweep, tmp_path_factory):
+    out = tmp_path_factory.mktemp("report")
+    return out, write_report(sweep, out, "pytest tests/test_report.py")
+
+
+@pytest.mark.parametrize("engine, integrator", PAIRS)
+def test_fitted_order_matches_the_expected_order(sweep, engine, integrator):
+    fits = fit_orders(sweep.results, expected_orders(sweep)).set_index(["engine", "integrator"])
+    fit = fits.loc[(engine, integrator)]
+    assert fit["points"] >= 3, fit["note"]
+    assert fit["order"] == pytest.approx(fit["expected_order"], abs=ORDER_ATOL), (
+        f"tumbling_box {engine} {integrator}: fitted order {fit['order']:.3f} over dt "
+        f"{fit['dt_min']}..{fit['dt_max']}, expected {fit['expected_order']}"
+    )
+    assert fit["r2"] > 0.999
+    # no gravity, no initial velocity: the COM stays put in every engine
+    assert fit["position_note"].startswith("exact")
+
+
+def test_fit_uses_only_the_asymptotic_range():
+    dt = np.array([0.1, 0.05, 0.02, 0.01, 0.005, 0.001])
+    error = 1e3 * dt**2  # order 2 ...
+    error[0] = 170.0  # ... saturated above the ceiling
+    error[-1] = ERROR_FLOOR_DEG / 10  # ... rounding below the floor
+    fit = fit_power_law(dt, error, ERROR_FLOOR_DEG, ERROR_CEILING_DEG)
+    assert fit["order"] == pytest.approx(2.0, abs=1e-12)
+    assert (fit["points"], fit["dt_min"], fit["dt_max"]) == (4, 0.005, 0.05)
+
+
+def test_no_fit_with_fewer_than_three_points():
+    fit = fit_power_law(np.array([0.1, 0.01, 0.001]), np.array([100.0, 1.0, 1e-12]), 1e-9, 30.0)
+    assert np.isnan(fit["order"]) and fit["points"] == 1
+    assert "need 3" in fit["note"]
+
+
+def test_pareto_front():
+    df = pd.DataFrame(
+        {
+            "cost": [1.0, 2.0, 2.0, 3.0, 4.0, 5.0, 0.5, 4.0],
+            "error": [5.0, 3.0, 4.0, 3.0, 1.0, 2.0, np.nan, 1.0],
+        },
+        index=list("abcdefgh"),
+    )
+    # c: same cost as b, more error; d: same error as b, more cost; f: more of both than e;
+    # g: no error; h: a duplicate of e
+    assert list(pareto_front(df, "cost", "error").index) == ["a", "b", "e"]
+
+
+def test_cost_to_tolerance():
+    def runs(case, reference, rows):
+        cols = ["integrator", "dt", "wall_s", "orientation_error_deg", "verdict"]
+        df = pd.DataFrame(rows, columns=cols)
+        return df.assign(case=case, engine="e", reference=reference, duration=10.0)
+
+    results = pd.concat(
+        [
+            runs(
+                "c",
+                "exact",
+                [
+                    ("A", 0.01, 1.0, 1e-3, "ok"),
+                    ("A", 0.001, 10.0, 1e-5, "ok"),
+                    ("B", 0.01, 2.0, 1e-7, "ok"),
+                    ("B", 0.1, 0.1, 0.0, "diverged"),  # cheap, but not valid
+                ],
+            ),
+            runs("s", "self-convergence (dt=0.001)", [("A", 0.01, 0.1, 1e-9, "ok")]),
+        ]
+    )
+    costs = cost_to_tolerance(results, (1e-2, 1e-4, 1e-6, 1e-8)).set_index("tolerance_deg")
+    assert set(costs["case"]) == {"c"}
+    assert costs.loc[1e-2, ["cost_s_per_s", "integrator", "dt"]].tolist() == [0.1, "A", 0.01]
+    assert costs.loc[1e-4, ["cost_s_per_s", "integrator", "dt"]].tolist() == [0.2, "B", 0.01]
+    assert costs.loc[1e-6, "cost_s_per_s"] == 0.2
+    assert np.isnan(costs.loc[1e-8, "cost_s_per_s"])
+
+
+def test_report_files(sweep, report):
+    out, written = report
+    for name in ("results.parquet", "results.csv", "report.md", "index.html"):
+        assert written[name] == out / name and (out / name).is_file()
+    figures = [name for name in written if name.startswith("figures/")]
+    kinds = ("drift", "convergence", "work_precision", "stability")
+    assert sorted(figures) == sorted(f"figures/tumbling_box_{kind}.png" for kind in kinds)
+    assert all((out / name).stat().st_size > 10_000 for name in figures)
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".")], "temporary files left"
+
+
+def test_results_files_have_one_row_per_run(sweep, report):
+    out, _ = report
+    for table in (pd.read_csv(out / "results.csv"), pd.read_parquet(out / "results.parquet")):
+        assert list(table.columns) == RESULT_COLUMNS
+        assert len(table) == len(PAIRS) * len(DTS)
+        assert (table["verdict"] == "ok").all()
+        nan = table[DEFINED].isna()
+        assert not nan.any().any(), f"NaN in {list(table[DEFINED].columns[nan.any()])}"
+        assert table["key"].tolist() == sweep.results["key"].tolist()
+
+
+def test_report_text(sweep, report):
+    out, _ = report
+    text = (out / "report.md").read_text()
+    for name in [*sweep.scenes, *sweep.results["engine"].unique()]:
+        assert name in text
+    for name in ("RK4", "Euler", "splitting", "Lowest front", "| passed "):
+        assert name in text
+    assert missing_references(out / "index.html") == []
+    html = (out / "index.html").read_text()
+    assert html.count("<img") == 4 and html.count("<table>") >= 5
+    assert 'style="text-align: right;"' in html  # numbers right-aligned
+
+
+def test_missing_references_finds_a_missing_figure(tmp_path):
+    (tmp_path / "figures").mkdir()
+    (tmp_path / "figures" / "a.png").write_bytes(b"")
+    page = tmp_path / "index.html"
+    page.write_text(
+        '<img src="figures/a.png"><img src="figures/b.png">'
+        '<a href="#x">x</a><a href="https://example.org/c.png">c</a>'
+    )
+    assert missing_references(page) == ["figures/b.png"]
+
+
+def test_report_with_failed_and_diverged_runs(sweep, tmp_path):
+    """Runs without a trajectory or numbers still show: in the tables and on the map."""
+    base = sweep.results.iloc[0]
+    broken = pd.DataFrame(
+        [
+            base.copy().to_dict() | {"dt": 0.04, "verdict": "diverged", "key": "d"},
+            base.copy().to_dict() | {"dt": 0.08, "verdict": "failed: parity mass", "key": "f"},
+        ]
+    )
+    for col in ["wall_s", "steps_per_s", "orientation_error_deg", "energy_drift"]:
+        broken[col] = np.nan
+    result = dataclasses.replace(
+        sweep, results=pd.concat([sweep.results, broken], ignore_index=True)
+    )
+    written = write_report(result, tmp_path, "test")
+    text = written["report.md"].read_text()
+    assert "diverged" in text and "failed in 1 of 6 runs: failed: parity mass" in text
+    assert "figures/tumbling_box_stability.png" in written
+    assert missing_references(written["index.html"]) == []
