@@ -123,12 +123,26 @@ class Body:
 class Expected:
     """What physics predicts for a scene beyond what `cases.exact` derives from it.
 
+    Closed-form contact outcomes, each stated by the case that checks it; all optional.
+
     Attributes:
       rest_com_height: distance (m) of the resting body's COM from the plane it ends on
         (the plane whose normal points most against gravity).
+      rebound_ratio: separating over approaching normal speed of the COM at each bounce (e).
+      apex_heights: clearance (m) of the lowest particle surface above the floor at the top of
+        the first bounces, h0 e^(2k) for k = 1, 2, ...
+      stopping_distance, stopping_time: how far (m) and how long (s) a body launched along the
+        floor slides before friction stops it: v0^2 / (2 mu g) and v0 / (mu g).
+      slope_acceleration: the COM's acceleration (m/s^2) down an incline: 0 when friction holds
+        it (tan theta <= mu), else g (sin theta - mu cos theta).
     """
 
     rest_com_height: PositiveNum | None = None
+    rebound_ratio: Annotated[Num, Field(ge=0, le=1)] | None = None
+    apex_heights: tuple[PositiveNum, ...] | None = None
+    stopping_distance: PositiveNum | None = None
+    stopping_time: PositiveNum | None = None
+    slope_acceleration: Annotated[Num, Field(ge=0)] | None = None
 
 
 @dataclass(frozen=True, config=_CONFIG)
