@@ -1,35 +1,49 @@
-"""Contact for the rigid integrators: impulses, not penalties.
+"""Contact for the rigid integrators: impulses, not penalties, and nothing but impulses.
 
 Why impulses: a penalty spring stiff enough to hold the 8 kg cube within 2 mm needs k above
 4e4 N/m, and an explicit step is then unstable at the seed's dt = 0.01 (omega dt > 2). Impulses
 have no stiffness, so contact costs no step-size limit and a resting body sits exactly on the
 surface.
 
-After each smooth step (free flight and gravity) the integrators call `resolve_contacts`:
+Why only impulses: every contact effect is an equal and opposite impulse at one contact point,
+so total linear and angular momentum are conserved exactly in a collision. A position
+correction that moves bodies without changing their velocities would change the angular
+momentum sum of m x cross v; none is used.
 
-1. Candidates: particle-plane pairs, and particle pairs of *different* bodies whose bounding
-   spheres overlap, closer than one particle radius. Particles of one body are never paired.
-2. Position projection (non-linear Gauss-Seidel): each penetrating contact moves its bodies
-   apart along the normal, through the contact's effective mass, until no penetration exceeds
-   `POSITION_TOLERANCE`. This is the resting body's height to that tolerance, with no creep.
-3. Velocity impulses (projected Gauss-Seidel with accumulated impulses) on touching contacts:
-   normal impulse >= 0 reaching the target normal speed -e * v_n (impacts faster than the bounce
-   threshold) or 0 (resting contacts); Coulomb friction impulse inside the disc |P_t| <= mu P_n.
-   Impulses change the COM velocity and the world angular momentum (dL = r x P).
+Each step is split around the drift (the integrator's position update), like the contact force
+of a kick-drift-kick scheme:
+
+1. Candidates (`find_candidates`): particle-plane pairs, and particle pairs of *different*
+   bodies whose bounding spheres can meet, whose gap could close within the step at the
+   bodies' current speeds. Particles of one body are never paired.
+2. Before the drift (`pre_solve`): speculative contacts on the velocity the drift will use
+   (v plus the part of this step's gravity the integrator adds during the drift). A contact
+   with gap g may approach by at most g / dt, so the drift ends touching, never penetrating
+   (to first order in the rotation). A contact that would close within the step at more than
+   the bounce threshold bounces: its normal speed becomes -e times the approach speed. Coulomb
+   friction acts with every normal impulse. A gap already negative (the rotation's second-order
+   overshoot) is closed at BAUMGARTE of its depth per step.
+3. After the drift (`post_solve`): touching contacts get the inelastic rest of the step's
+   impulse (normal speed >= 0 and friction), which removes the gravity the drift's second half
+   added: a resting body ends the step with zero velocity, exactly still, without creep.
+
+Both solves are projected Gauss-Seidel with accumulated impulses: normal impulse >= 0, friction
+impulse inside the disc |P_t| <= mu P_n; impulses change the COM velocity and the world angular
+momentum (dL = r x P).
 """
 
 import numpy as np
 from numba import njit
 
-from reference_sim.quaternion import quat_from_rotvec, quat_multiply, quat_normalize, quat_to_matrix
+from reference_sim.quaternion import quat_to_matrix
 
-# Penetration left by the position projection (m): far below the 2 mm rest-height tolerance
-# and far above rounding of metre-scale coordinates (1e-16 m).
-POSITION_TOLERANCE = 1e-10
-# A contact is touching, and gets velocity impulses, when its gap is below this (m): ten times
-# the projection tolerance, so every projected contact counts and no separated one does.
+# A contact is touching, and gets the post-drift impulse, when its gap is below this (m):
+# speculative contacts end the drift touching to rounding of metre-scale coordinates (1e-15 m).
 TOUCH_TOLERANCE = 1e-9
-# Stop Gauss-Seidel when no impulse changes a normal speed by more than this (m/s).
+# Fraction of an (already) negative gap closed per step: Baumgarte's classic 0.2, enough to
+# remove the tiny second-order overshoots of rotating bodies without a visible kick.
+BAUMGARTE = 0.2
+# Stop Gauss-Seidel when no impulse changes a speed by more than this (m/s).
 VELOCITY_TOLERANCE = 1e-13
 MAX_ITERATIONS = 500
 
@@ -53,38 +67,50 @@ def body_frames(model, q):
 
 
 @njit(cache=True)
-def find_candidates(model, x, q):
-    """Contacts to consider this step: (body a, particle i, body b or -1, particle j or plane)."""
+def _reach(model, q, v, L, b, dt):
+    """How far (m) any surface point of body b can move in a step: linear plus rotational
+    speed, plus the step's gravity."""
+    omega = quat_to_matrix(q[b]) @ (model.inertia0_inv[b] @ (quat_to_matrix(q[b]).T @ L[b]))
+    speed = np.sqrt(np.dot(v[b], v[b])) + np.sqrt(np.dot(omega, omega)) * model.bound_radius[b]
+    return dt * speed + dt * dt * np.sqrt(np.dot(model.gravity, model.gravity))
+
+
+@njit(cache=True)
+def find_candidates(model, x, q, v, L, dt):
+    """Contacts that could touch within the step: rows (body a, particle i, body b or -1,
+    particle j or plane index). A particle radius of slack on top of the reach keeps contacts
+    that rotation brings a little closer than the linear estimate."""
     nb = model.body_mass.shape[0]
     npl = model.plane_points.shape[0]
     npt = model.offsets.shape[0]
-    cap = npt * npl + 16
-    out = np.empty((cap, 4), dtype=np.int64)
+    reach = np.empty(nb)
+    for b in range(nb):
+        reach[b] = _reach(model, q, v, L, b, dt)
+    out = np.empty((npt * npl + 16, 4), dtype=np.int64)
     k = 0
     for b in range(nb):
         rot = quat_to_matrix(q[b])
         for i in range(model.body_start[b], model.body_start[b + 1]):
             p = x[b] + rot @ model.offsets[i]
             for j in range(npl):
-                n = model.plane_normals[j]
-                gap = np.dot(n, p - model.plane_points[j]) - model.radius[i]
-                if gap < model.radius[i]:
+                gap = np.dot(model.plane_normals[j], p - model.plane_points[j]) - model.radius[i]
+                if gap < reach[b] + model.radius[i]:
                     out[k] = (b, i, -1, j)
                     k += 1
     for a in range(nb):
         for b in range(a + 1, nb):
             d = x[a] - x[b]
-            if np.sqrt(np.dot(d, d)) > model.bound_radius[a] + model.bound_radius[b]:
+            apart = np.sqrt(np.dot(d, d)) - model.bound_radius[a] - model.bound_radius[b]
+            if apart > reach[a] + reach[b]:
                 continue
             ra = quat_to_matrix(q[a])
             rb = quat_to_matrix(q[b])
             for i in range(model.body_start[a], model.body_start[a + 1]):
                 pa = x[a] + ra @ model.offsets[i]
                 for j in range(model.body_start[b], model.body_start[b + 1]):
-                    pb = x[b] + rb @ model.offsets[j]
-                    dd = pa - pb
+                    dd = pa - x[b] - rb @ model.offsets[j]
                     gap = np.sqrt(np.dot(dd, dd)) - model.radius[i] - model.radius[j]
-                    if gap < min(model.radius[i], model.radius[j]):
+                    if gap < reach[a] + reach[b] + min(model.radius[i], model.radius[j]):
                         if k == out.shape[0]:
                             grown = np.empty((2 * k, 4), dtype=np.int64)
                             grown[:k] = out
@@ -114,58 +140,6 @@ def contact_geometry(model, x, rot, c):
     gap = dist - model.radius[i] - model.radius[j]
     point = 0.5 * (pa - model.radius[i] * n + pb + model.radius[j] * n)
     return n, gap, point - x[a], point - x[b]
-
-
-@njit(cache=True)
-def _inverse_mass_along(model, inv_a, inv_b, a, b, ra, rb, n):
-    """Effective inverse mass of the contact along direction n."""
-    rn = np.cross(ra, n)
-    k = 1.0 / model.body_mass[a] + np.dot(rn, inv_a @ rn)
-    if b >= 0:
-        rn = np.cross(rb, n)
-        k += 1.0 / model.body_mass[b] + np.dot(rn, inv_b @ rn)
-    return k
-
-
-@njit(cache=True)
-def _move_apart(model, x, q, rot, inv, a, b, ra, rb, push):
-    """Displace bodies a and b by the position impulse `push` (along n) at lever arms ra, rb."""
-    x[a] += push / model.body_mass[a]
-    q[a] = quat_normalize(quat_multiply(quat_from_rotvec(inv[a] @ np.cross(ra, push)), q[a]))
-    _update_frame(model, q, rot, inv, a)
-    if b >= 0:
-        x[b] -= push / model.body_mass[b]
-        q[b] = quat_normalize(quat_multiply(quat_from_rotvec(-(inv[b] @ np.cross(rb, push))), q[b]))
-        _update_frame(model, q, rot, inv, b)
-
-
-@njit(cache=True)
-def _project_positions(model, x, q, cands):
-    """Solve gap >= 0 with accumulated position impulses >= 0 (projected Gauss-Seidel).
-
-    Accumulating lets a contact give back an earlier push, so contacts sharing a load (a cube
-    on its face) end exactly touching instead of being over-pushed one after another.
-    """
-    rot, inv = body_frames(model, q)
-    acc = np.zeros(cands.shape[0])
-    for it in range(MAX_ITERATIONS):
-        moved = 0.0
-        for k in range(cands.shape[0]):
-            c = cands[k]
-            n, gap, ra, rb = contact_geometry(model, x, rot, c)
-            if gap >= 0.0 and acc[k] == 0.0:
-                continue
-            a, b = c[0], c[2]
-            kn = _inverse_mass_along(model, inv[a], inv[max(b, 0)], a, b, ra, rb, n)
-            new = max(acc[k] - gap / kn, 0.0)
-            dl = new - acc[k]
-            acc[k] = new
-            if dl != 0.0:
-                _move_apart(model, x, q, rot, inv, a, b, ra, rb, dl * n)
-                moved = max(moved, abs(dl) * kn)
-        if moved < POSITION_TOLERANCE:
-            return it + 1
-    return MAX_ITERATIONS
 
 
 @njit(cache=True)
@@ -202,12 +176,15 @@ def _push(model, jac, a, b, v, L, omega, k, d, lam):
 
 
 @njit(cache=True)
-def _solve_velocities(model, x, q, v, L, cands, bounce_threshold):
-    """Projected Gauss-Seidel on the touching contacts' normal and friction impulses.
+def _solve(model, x, q, v, L, cands, dt, post, bounce_threshold):
+    """Projected Gauss-Seidel on the contacts' normal and friction impulses, in place.
 
+    Before the drift (post False) every candidate is speculative, with target normal speed
+    -gap / dt (or the bounce); after it (post True) only touching contacts act, inelastically.
     Per contact and direction (normal, two tangents) the Jacobian rows are precomputed:
     jac[k, d] = (direction, r_a x dir, I_a^-1 (r_a x dir), r_b x dir, I_b^-1 (r_b x dir)), so a
     sweep allocates nothing. Friction is solved as a 2 x 2 block and projected onto the disc.
+    Returns the sweeps used.
     """
     nb = model.body_mass.shape[0]
     rot, inv = body_frames(model, q)
@@ -218,12 +195,13 @@ def _solve_velocities(model, x, q, v, L, cands, bounce_threshold):
     active = np.zeros(nc, dtype=np.bool_)
     jac = np.zeros((nc, 3, 5, 3))
     kn = np.ones(nc)
+    kt = np.zeros((nc, 2, 2))
     kt_inv = np.zeros((nc, 2, 2))
     target = np.zeros(nc)
     for k in range(nc):
         a, b = cands[k, 0], cands[k, 2]
         n, gap, ra, rb = contact_geometry(model, x, rot, cands[k])
-        if gap > TOUCH_TOLERANCE:
+        if post and gap > TOUCH_TOLERANCE:
             continue
         active[k] = True
         t1, t2 = _tangents(n)
@@ -244,10 +222,13 @@ def _solve_velocities(model, x, q, v, L, cands, bounce_threshold):
                     + np.dot(jac[k, d, 3], jac[k, e, 4])
                 )
         kn[k] = kmat[0, 0]
-        kt_inv[k] = np.linalg.inv(kmat[1:, 1:])
-        vn = _speed(jac, a, b, v, omega, k, 0)
-        if vn < -bounce_threshold:
-            target[k] = -model.restitution * vn
+        kt[k] = kmat[1:, 1:]
+        kt_inv[k] = np.linalg.inv(kt[k])
+        if not post:
+            vn = _speed(jac, a, b, v, omega, k, 0)
+            target[k] = -gap / dt if gap >= 0.0 else -BAUMGARTE * gap / dt
+            if vn < -bounce_threshold and gap + dt * vn < 0.0:
+                target[k] = max(target[k], -model.restitution * vn)
     lam_n = np.zeros(nc)
     lam_t = np.zeros((nc, 2))
     for it in range(MAX_ITERATIONS):
@@ -266,16 +247,21 @@ def _solve_velocities(model, x, q, v, L, cands, bounce_threshold):
                 change = max(change, abs(dl) * kn[k])
             if model.friction == 0.0:
                 continue
-            # friction impulse stopping the sliding, kept inside the Coulomb disc
-            u1 = _speed(jac, a, b, v, omega, k, 1)
-            u2 = _speed(jac, a, b, v, omega, k, 2)
-            f1 = lam_t[k, 0] - (kt_inv[k, 0, 0] * u1 + kt_inv[k, 0, 1] * u2)
-            f2 = lam_t[k, 1] - (kt_inv[k, 1, 0] * u1 + kt_inv[k, 1, 1] * u2)
+            # friction: the impulse that stops the sliding if it fits in the Coulomb disc; else
+            # mu P_n against the sliding velocity this contact's own friction leaves (maximum
+            # dissipation). Clipping the stopping impulse instead would aim the friction along
+            # K_t^-1 u, off the sliding direction whenever K_t is anisotropic: a sliding cube
+            # would yaw and decelerate by less than mu g.
+            g1 = _speed(jac, a, b, v, omega, k, 1)
+            g2 = _speed(jac, a, b, v, omega, k, 2)
+            g1 -= kt[k, 0, 0] * lam_t[k, 0] + kt[k, 0, 1] * lam_t[k, 1]
+            g2 -= kt[k, 1, 0] * lam_t[k, 0] + kt[k, 1, 1] * lam_t[k, 1]
+            f1 = -(kt_inv[k, 0, 0] * g1 + kt_inv[k, 0, 1] * g2)
+            f2 = -(kt_inv[k, 1, 0] * g1 + kt_inv[k, 1, 1] * g2)
             limit = model.friction * lam_n[k]
-            mag = np.sqrt(f1 * f1 + f2 * f2)
-            if mag > limit:
-                f1 *= limit / mag
-                f2 *= limit / mag
+            if f1 * f1 + f2 * f2 > limit * limit:
+                slide = np.sqrt(g1 * g1 + g2 * g2)
+                f1, f2 = -limit * g1 / slide, -limit * g2 / slide
             d1, d2 = f1 - lam_t[k, 0], f2 - lam_t[k, 1]
             lam_t[k, 0], lam_t[k, 1] = f1, f2
             if d1 != 0.0 or d2 != 0.0:
@@ -289,15 +275,18 @@ def _solve_velocities(model, x, q, v, L, cands, bounce_threshold):
 
 
 @njit(cache=True)
-def resolve_contacts(model, x, q, v, L, bounce_threshold):
-    """Project penetrations out, then apply contact and friction impulses, in place.
+def pre_solve(model, x, q, v, L, cands, dt, drift_gravity, bounce_threshold):
+    """Speculative impulses on the velocity the drift will use: v + drift_gravity (m/s), the
+    part of this step's gravity the integrator adds during the drift. Changes v and L."""
+    for b in range(v.shape[0]):
+        v[b] += drift_gravity
+    sweeps = _solve(model, x, q, v, L, cands, dt, False, bounce_threshold)
+    for b in range(v.shape[0]):
+        v[b] -= drift_gravity
+    return sweeps
 
-    Returns the Gauss-Seidel sweeps used by the position and the velocity solves.
-    """
-    cands = find_candidates(model, x, q)
-    if cands.shape[0] == 0:
-        return 0, 0
-    return (
-        _project_positions(model, x, q, cands),
-        _solve_velocities(model, x, q, v, L, cands, bounce_threshold),
-    )
+
+@njit(cache=True)
+def post_solve(model, x, q, v, L, cands, dt):
+    """Inelastic impulses on the contacts touching after the drift. Changes v and L."""
+    return _solve(model, x, q, v, L, cands, dt, True, 0.0)

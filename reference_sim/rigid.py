@@ -3,7 +3,7 @@
 State per body: COM x, orientation q, COM velocity v and world angular momentum L. The world
 inertia is R(q) I0 R(q)^T and omega = I(t)^-1 L. Uniform gravity exerts no torque about the
 COM, so without contact L is constant and every integrator leaves it untouched; contact enters
-as impulses after the smooth step (`reference_sim.contact`).
+as impulses before and after the drift (`reference_sim.contact`).
 
 - euler: semi-implicit Euler, first order: v += g dt; x += v dt; q <- exp(omega dt) q.
 - splitting: kick-drift-kick (Stormer-Verlet) for translation, so constant gravity is exact;
@@ -18,7 +18,7 @@ as impulses after the smooth step (`reference_sim.contact`).
 import numpy as np
 from numba import njit
 
-from reference_sim.contact import resolve_contacts
+from reference_sim.contact import find_candidates, post_solve, pre_solve
 from reference_sim.quaternion import quat_from_rotvec, quat_multiply, quat_normalize, quat_to_matrix
 
 INTEGRATORS = {"euler": 0, "splitting": 1, "rk4": 2}
@@ -69,25 +69,34 @@ def _rk4_body(model, x, q, v, L, b, dt):
 
 @njit(cache=True)
 def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold):
-    """Advance every body by dt in place."""
+    """Advance every body by dt in place; contact impulses before and after the drift."""
+    half = 0.5 * dt * model.gravity
+    if integrator == EULER and model.gravity_on:
+        for b in range(x.shape[0]):
+            v[b] += dt * model.gravity
+    cands = np.empty((0, 4), dtype=np.int64)
+    if model.contact:
+        cands = find_candidates(model, x, q, v, L, dt)
+        if cands.shape[0]:
+            # the drift moves euler's bodies with v, the others' with v + g dt / 2
+            drift_gravity = np.zeros(3) if integrator == EULER else half
+            pre_solve(model, x, q, v, L, cands, dt, drift_gravity, bounce_threshold)
     for b in range(x.shape[0]):
         if integrator == EULER:
-            if model.gravity_on:
-                v[b] += dt * model.gravity
             x[b] += dt * v[b]
             w = world_omega(model, q[b], L[b], b)
             q[b] = quat_normalize(quat_multiply(quat_from_rotvec(dt * w), q[b]))
         elif integrator == SPLITTING:
             if model.gravity_on:
-                v[b] += 0.5 * dt * model.gravity
+                v[b] += half
             x[b] += dt * v[b]
             q[b] = _free_rotation_split(model, q[b], L[b], b, dt)
             if model.gravity_on:
-                v[b] += 0.5 * dt * model.gravity
+                v[b] += half
         else:
             x[b], q[b], v[b] = _rk4_body(model, x[b], q[b], v[b], L[b], b, dt)
-    if model.contact:
-        resolve_contacts(model, x, q, v, L, bounce_threshold)
+    if cands.shape[0]:
+        post_solve(model, x, q, v, L, cands, dt)
 
 
 @njit(cache=True)
