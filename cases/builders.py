@@ -67,3 +67,44 @@ def box_walls(lower=(0.0, 0.0, 0.0), upper=(10.0, 10.0, 10.0)) -> tuple[Plane, .
 def floor(height: float = 0.0) -> Plane:
     """The plane z = height facing up."""
     return Plane(point=(0.0, 0.0, float(height)), normal=(0.0, 0.0, 1.0))
+
+
+def rotation_y(theta: float) -> np.ndarray:
+    """(3, 3) rotation by `theta` (rad) about the y axis: it maps z to (sin theta, 0, cos theta)."""
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rotated(rows: Rows, rotation, about=(0.0, 0.0, 0.0)) -> Rows:
+    """`rows` rotated by the (3, 3) matrix `rotation` about the point `about`; masses kept."""
+    data = np.asarray(rows, dtype=float)
+    pivot = np.asarray(about, dtype=float)
+    positions = (data[:, :3] - pivot) @ np.asarray(rotation, dtype=float).T + pivot
+    return tuple(
+        (float(x), float(y), float(z), float(m))
+        for (x, y, z), m in zip(positions, data[:, 3], strict=True)
+    )
+
+
+def shifted(rows: Rows, offset) -> Rows:
+    """`rows` translated by `offset`; masses kept."""
+    return tuple((x + offset[0], y + offset[1], z + offset[2], m) for x, y, z, m in rows)
+
+
+def cube_above_floor(gap: float = 0.0, radius: float = 0.2, center_xy=(0.0, 0.0)) -> Rows:
+    """The seed's cube centred over `center_xy`, faces axis-aligned, its lowest particles' surfaces
+    `gap` above the floor z = 0 (centres at z = radius + gap): gap 0 touches exactly, and the COM
+    sits at 0.5 + radius + gap."""
+    return seed_cube(offset=(center_xy[0] - 0.5, center_xy[1] - 0.5, radius + gap))
+
+
+def stacked(rows: Rows, count: int, pitch: float) -> tuple[Rows, ...]:
+    """`count` copies of `rows`, the k-th (from 0) raised by k * `pitch` along z."""
+    return tuple(shifted(rows, (0.0, 0.0, k * pitch)) for k in range(count))
+
+
+def incline(theta: float) -> Plane:
+    """The plane through the origin tilted by `theta` (rad) about y, normal (sin theta, 0,
+    cos theta): its surface descends towards +x, downhill unit vector (cos theta, 0, -sin theta).
+    `rotated(rows, rotation_y(theta))` carries a body resting on the floor z = 0 onto it."""
+    return Plane(point=(0.0, 0.0, 0.0), normal=(float(np.sin(theta)), 0.0, float(np.cos(theta))))

@@ -22,6 +22,23 @@ listed here is an error. Positions are world coordinates at t = 0.
                                                                 `cases.exact`
   expected.rest_com_height number > 0, m             absent     distance of the resting body's
                                                                 COM from the plane it ends on
+                                                                (normal most against gravity)
+  expected.rebound_ratio   number in [0, 1]          absent     separating / approaching normal
+                                                                speed of the COM at each bounce
+  expected.apex_heights    array of numbers > 0, m   absent     clearance of the lowest particle
+                                                                surface above the floor at the
+                                                                top of bounce 1, 2, ...:
+                                                                h0 e^(2k) for a drop from h0
+  expected.stopping_distance
+                           number > 0, m             absent     how far the COM slides along the
+                                                                floor before friction stops it:
+                                                                v0^2 / (2 mu g)
+  expected.stopping_time   number > 0, s             absent     how long it slides: v0 / (mu g)
+  expected.slope_acceleration
+                           number >= 0, m/s^2        absent     the COM's acceleration down an
+                                                                incline: 0 when friction holds
+                                                                (tan theta <= mu), else
+                                                                g (sin theta - mu cos theta)
   [[planes]]               array of tables           []         static half-spaces; need [contact]
   planes.point             vector, m                 required   a point on the plane
   planes.normal            vector, non-zero          required   points into the free side; any

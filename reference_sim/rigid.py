@@ -18,7 +18,7 @@ as impulses before and after the drift (`reference_sim.contact`).
 import numpy as np
 from numba import njit
 
-from reference_sim.contact import find_candidates, post_solve, pre_solve
+from reference_sim.contact import find_candidates, post_solve, pre_solve, remember, world_omega
 from reference_sim.quaternion import quat_from_rotvec, quat_multiply, quat_normalize, quat_to_matrix
 
 INTEGRATORS = {"euler": 0, "splitting": 1, "rk4": 2}
@@ -26,13 +26,6 @@ EULER, SPLITTING, RK4 = 0, 1, 2
 # Impacts slower than this many steps' worth of gravity are resting contacts, not bounces:
 # a body lying still gains |g| dt of approach speed every step and must not bounce on it.
 BOUNCE_STEPS = 2.0
-
-
-@njit(cache=True)
-def world_omega(model, q, L, b):
-    """World angular velocity omega = R I0^-1 R^T L of body b."""
-    r = quat_to_matrix(q)
-    return r @ (model.inertia0_inv[b] @ (r.T @ L))
 
 
 @njit(cache=True)
@@ -68,8 +61,12 @@ def _rk4_body(model, x, q, v, L, b, dt):
 
 
 @njit(cache=True)
-def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold):
-    """Advance every body by dt in place; contact impulses before and after the drift."""
+def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, memory):
+    """Advance every body by dt in place; contact impulses before and after the drift.
+
+    `memory` holds last step's contact impulses (keys and values, before and after the drift)
+    for the warm start; the updated memory is returned.
+    """
     half = 0.5 * dt * model.gravity
     if integrator == EULER and model.gravity_on:
         for b in range(x.shape[0]):
@@ -77,10 +74,15 @@ def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold):
     cands = np.empty((0, 4), dtype=np.int64)
     if model.contact:
         cands = find_candidates(model, x, q, v, L, dt)
-        if cands.shape[0]:
-            # the drift moves euler's bodies with v, the others' with v + g dt / 2
-            drift_gravity = np.zeros(3) if integrator == EULER else half
-            pre_solve(model, x, q, v, L, cands, dt, drift_gravity, bounce_threshold)
+    lam, bounce = np.zeros((0, 3)), np.zeros(0)
+    pre_keys, pre_lam = memory[0], memory[1]
+    if cands.shape[0]:
+        # the drift moves euler's bodies with v, the others' with v + g dt / 2
+        drift_gravity = np.zeros(3) if integrator == EULER else half
+        _, lam, pushed, bounce = pre_solve(
+            model, x, q, v, L, cands, dt, drift_gravity, bounce_threshold, memory[0], memory[1]
+        )
+        pre_keys, pre_lam = remember(model, cands, lam, pushed & (lam[:, 0] > 0.0))
     for b in range(x.shape[0]):
         if integrator == EULER:
             x[b] += dt * v[b]
@@ -95,8 +97,23 @@ def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold):
                 v[b] += half
         else:
             x[b], q[b], v[b] = _rk4_body(model, x[b], q[b], v[b], L[b], b, dt)
-    if cands.shape[0]:
-        post_solve(model, x, q, v, L, cands, dt)
+    if cands.shape[0] == 0:
+        return memory
+    _, lam, active = post_solve(
+        model,
+        x,
+        q,
+        v,
+        L,
+        cands,
+        dt,
+        bounce,
+        (lam[:, 0] > 0.0) | (bounce > 0.0),
+        memory[2],
+        memory[3],
+    )
+    post_keys, post_lam = remember(model, cands, lam, active)
+    return pre_keys, pre_lam, post_keys, post_lam
 
 
 @njit(cache=True)
@@ -118,11 +135,13 @@ def run_rigid(model, integrator, x, q, v, L, dt, n_steps, stride):
     out = np.empty((n_samples, x.shape[0], 13))
     steps = np.empty(n_samples, dtype=np.int64)
     bounce_threshold = BOUNCE_STEPS * np.sqrt(np.dot(model.gravity, model.gravity)) * dt
+    none = np.empty(0, dtype=np.int64)
+    memory = (none, np.empty((0, 3)), none, np.empty((0, 3)))
     _record(model, x, q, v, L, out[0])
     steps[0] = 0
     s = 1
     for n in range(1, n_steps + 1):
-        rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold)
+        memory = rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, memory)
         if n % stride == 0 or n == n_steps:
             _record(model, x, q, v, L, out[s])
             steps[s] = n
