@@ -29,14 +29,16 @@ REST_WINDOW = 0.5  # s, the final stretch of the run inspected for rest
 
 def body_arrays(traj: Trajectory, body: str) -> dict[str, np.ndarray]:
     """{'t': (S,), 'x': (S, 3), 'q': (S, 4), 'v': (S, 3), 'w': (S, 3)} of one body."""
-    rows = traj.body(body)
-    return {
-        "t": rows["t"].to_numpy(),
-        "x": rows[POSITION].to_numpy(),
-        "q": rows[QUATERNION].to_numpy(),
-        "v": rows[VELOCITY].to_numpy(),
-        "w": rows[ANGULAR_VELOCITY].to_numpy(),
-    }
+    table = traj.table
+    rows = table["body"].to_numpy() == body
+    columns = {"t": ["t"], "x": POSITION, "q": QUATERNION, "v": VELOCITY, "w": ANGULAR_VELOCITY}
+    values = table[[c for names in columns.values() for c in names]].to_numpy(dtype=float)[rows]
+    out, start = {}, 0
+    for key, names in columns.items():
+        out[key] = np.ascontiguousarray(values[:, start : start + len(names)])
+        start += len(names)
+    out["t"] = out["t"][:, 0]
+    return out
 
 
 def _world_inertia(q: np.ndarray, inertia0: np.ndarray) -> np.ndarray:
@@ -197,7 +199,8 @@ def rest(traj: Trajectory, scene: Scene, body: str, window: float = REST_WINDOW)
 def summarize(traj: Trajectory, scene: Scene) -> dict[str, float | str | bool]:
     """One run's headline numbers: speed, drifts, pose error against the exact solution where
     the scene has one (largest over the run, and the orientation error at the end), largest
-    shape error (deforming engines) and rest (where the scene predicts a rest height)."""
+    shape error (deforming engines), rest (where the scene predicts a rest height) and the
+    verdict (`comparators.outcomes.verdict`: ok, diverged, tunnelled or jitter)."""
     m = traj.meta
     out: dict[str, float | str | bool] = {
         "case": m.case,
@@ -210,7 +213,8 @@ def summarize(traj: Trajectory, scene: Scene) -> dict[str, float | str | bool]:
         "steps_per_s": m.steps_per_s,
         "realtime_factor": m.duration / m.wall_s if m.wall_s > 0 else float("inf"),
     }
-    out.update(drifts(traj, scene))
+    with np.errstate(over="ignore", invalid="ignore"):  # a blown-up run's drifts are inf
+        out.update(drifts(traj, scene))
     if exact_trajectory_available(scene):
         times = body_arrays(traj, scene.bodies[0].name)["t"]
         errors = pose_errors(traj, exact_states(scene, times), scene)
@@ -228,6 +232,8 @@ def summarize(traj: Trajectory, scene: Scene) -> dict[str, float | str | bool]:
             out[prefix + "at_rest"] = r["at_rest"]
             out[prefix + "rest_com_height"] = r["com_height"]
             out[prefix + "rest_height_error"] = r["com_height"] - scene.expected.rest_com_height
-    finite = np.isfinite(traj.table.drop(columns=["body"]).to_numpy()).all()
-    out["verdict"] = "ok" if finite else "diverged"
+    # outcomes builds on this module's helpers, so it is imported here, not at the top
+    from comparators.outcomes import verdict
+
+    out["verdict"] = verdict(traj, scene)
     return out

@@ -40,6 +40,7 @@ from cases.scene import Scene
 from comparators.cache import ResultsCache, code_version, run_key
 from comparators.engine import ENGINES, run
 from comparators.metrics import pose_errors_between, summarize
+from comparators.outcomes import OUTCOME_COLUMNS, outcomes
 from comparators.parity import ParityError
 from comparators.trajectory import Trajectory, package_versions
 
@@ -67,11 +68,21 @@ RESULT_COLUMNS = [
     "shape_error",  # seed only, else NaN
     "rest_com_height",  # where the case predicts rest, else NaN
     "rest_height_error",
-    "verdict",  # "ok", "diverged" or "failed: <reason>"
+    "verdict",  # "ok", "diverged", "tunnelled", "jitter" (comparators.outcomes), "failed: ..."
     "engine_version",
     "code_version",
     "key",  # results-cache key; indexes SweepResult.trajectories
 ]
+# One row per run and measured quantity (comparators.outcomes), long format.
+OUTCOMES_COLUMNS = ["case", "engine", "integrator", "dt", *OUTCOME_COLUMNS]
+_NUMERIC_OUTCOMES = ("dt", "measured", "expected", "error")
+
+
+def empty_outcomes() -> pd.DataFrame:
+    """An outcomes table without rows, with `OUTCOMES_COLUMNS` and their dtypes."""
+    return pd.DataFrame(
+        {c: pd.Series(dtype=float if c in _NUMERIC_OUTCOMES else object) for c in OUTCOMES_COLUMNS}
+    )
 
 
 @dataclass
@@ -81,6 +92,8 @@ class SweepResult:
     Attributes:
       scenes: the cases swept, by name, in report order.
       results: one row per run, columns `RESULT_COLUMNS`.
+      outcomes: one row per run with a trajectory and quantity it measures, columns
+        `OUTCOMES_COLUMNS` (`comparators.outcomes.outcomes`, tagged with the run).
       trajectories: by `results["key"]`, for every run that produced one.
       references: per case, what its errors are measured against.
       elapsed_s: wall time of the whole sweep; machine: CPU, cores, Python and library versions.
@@ -98,13 +111,21 @@ class SweepResult:
     computed: int = 0
     cached: int = 0
     orders: dict[tuple[str, str], int] = field(default_factory=dict)  # (engine, integrator)
+    outcomes: pd.DataFrame = field(default_factory=empty_outcomes)
 
 
 # dt sweeps as multiples of each case's default dt. Full: two octaves coarser and four finer
 # reach the asymptotic range of every integrator on the exact cases. Quick: three points, the
-# fewest a convergence fit can use.
+# fewest a convergence fit can use; the hard cases (tag "hard": long runs, small default dt) only
+# at their default dt, to keep `rigidbench report --quick` near its 2-minute budget.
 FULL_DT_FACTORS = (2.0, 1.0, 0.5, 0.25, 0.125, 0.0625)
 QUICK_DT_FACTORS = (2.0, 1.0, 0.5)
+QUICK_HARD_DT_FACTORS = (1.0,)
+# ... and timed once: the quick report shows their verdicts and outcomes, and repeating their
+# 0.2 to 1 s runs three times for the timing median would cost it ~20 s (the full report and
+# every other case keep REPEATS).
+QUICK_HARD_REPEATS = 1
+HARD_TAG = "hard"
 # Timing: a run is repeated until it has REPEATS timings, but only while one run takes less
 # than REPEAT_BELOW_S: longer runs average out scheduler noise within themselves.
 REPEATS = 3
@@ -136,14 +157,32 @@ def plan(
     """The runs of the matrix, ordered so that consecutive runs cycle through the engines:
     machine drift during the sweep then falls on every engine alike.
 
-    dt sweeps are `dt_factors` (default: the quick or full factors) times each scene's dt.
+    dt sweeps are `dt_factors` times each scene's dt; by default the full factors, or with
+    `quick` the quick ones, and for scenes tagged "hard" QUICK_HARD_DT_FACTORS with at most
+    QUICK_HARD_REPEATS timings.
     """
-    factors = dt_factors or (QUICK_DT_FACTORS if quick else FULL_DT_FACTORS)
+
+    def hard(scene: Scene) -> bool:
+        return quick and dt_factors is None and HARD_TAG in scene.tags
+
+    def factors(scene: Scene) -> tuple[float, ...]:
+        if dt_factors:
+            return dt_factors
+        if hard(scene):
+            return QUICK_HARD_DT_FACTORS
+        return QUICK_DT_FACTORS if quick else FULL_DT_FACTORS
+
     per_engine = {
         name: [
-            RunSpec(scene, name, integrator, scene.dt * f, repeats)
+            RunSpec(
+                scene,
+                name,
+                integrator,
+                scene.dt * f,
+                min(repeats, QUICK_HARD_REPEATS) if hard(scene) else repeats,
+            )
             for scene in scenes
-            for f in factors
+            for f in factors(scene)
             for integrator in ENGINES[name].integrators
         ]
         for name in engines
@@ -280,7 +319,7 @@ def run_sweep(
                 trajectories[spec] = traj
             bar.update(task, advance=1, description=spec.label)
     scenes = {spec.scene.name: spec.scene for spec in specs}
-    results, references = _results(specs, keys, trajectories, failures)
+    results, references, measured = _results(specs, keys, trajectories, failures)
     return SweepResult(
         scenes=scenes,
         results=results,
@@ -292,6 +331,7 @@ def run_sweep(
         computed=len(todo),
         cached=len(specs) - len(todo),
         orders={(s.engine, s.integrator): ENGINES[s.engine].orders[s.integrator] for s in specs},
+        outcomes=measured,
     )
 
 
@@ -311,13 +351,21 @@ def _reference_label(scene: Scene) -> str:
     return label
 
 
-def _results(specs, keys, trajectories, failures) -> tuple[pd.DataFrame, dict[str, str]]:
+def run_outcomes(spec: RunSpec, traj: Trajectory) -> pd.DataFrame:
+    """`comparators.outcomes.outcomes` of one run, tagged with its case, engine, integrator, dt."""
+    measured = outcomes(traj, spec.scene)
+    tags = {"case": spec.scene.name, "engine": spec.engine, "integrator": spec.integrator}
+    return measured.assign(**tags, dt=spec.dt)[OUTCOMES_COLUMNS]
+
+
+def _results(specs, keys, trajectories, failures):
+    """(results table, references by case, outcomes table) of a sweep's runs."""
     finest: dict[tuple, RunSpec] = {}
     for spec in trajectories:
         group = (spec.scene.name, spec.engine, spec.integrator)
         if group not in finest or spec.dt < finest[group].dt:
             finest[group] = spec
-    rows = []
+    rows, measured = [], []
     for spec in specs:
         row = dict.fromkeys(RESULT_COLUMNS, np.nan)
         row.update(
@@ -334,6 +382,7 @@ def _results(specs, keys, trajectories, failures) -> tuple[pd.DataFrame, dict[st
             rows.append(row)
             continue
         summary = summarize(traj, spec.scene)
+        measured.append(run_outcomes(spec, traj))
         row.update({k: v for k, v in summary.items() if k in row and k != "key"})
         walls = traj.meta.wall_runs or [traj.meta.wall_s]
         row.update(
@@ -352,4 +401,6 @@ def _results(specs, keys, trajectories, failures) -> tuple[pd.DataFrame, dict[st
                 row["orientation_error_deg"] = errors["orientation_error_deg"].max()
         rows.append(row)
     references = {spec.scene.name: _reference_label(spec.scene) for spec in specs}
-    return pd.DataFrame(rows, columns=RESULT_COLUMNS), references
+    frames = [m for m in measured if len(m)]
+    table = pd.concat(frames, ignore_index=True) if frames else empty_outcomes()
+    return pd.DataFrame(rows, columns=RESULT_COLUMNS), references, table

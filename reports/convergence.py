@@ -130,3 +130,35 @@ def lowest_front(df: pd.DataFrame, x: str, y: str, by: str) -> pd.Series:
         within = finite[finite[x] <= budget]
         winners[budget] = within.loc[within[y].idxmin(), by]
     return pd.Series(winners, name=by, dtype=object)
+
+
+def largest_stable_dt(results: pd.DataFrame) -> pd.DataFrame:
+    """Per (case, engine, integrator): the largest swept dt at which the run and every run at a
+    smaller dt have the verdict "ok".
+
+    Columns: case, engine, integrator, largest_stable_dt (s; NaN when even the smallest dt
+    fails), all_stable (every swept dt is ok: the largest stable dt is at least the largest
+    swept), dt_max (s, the largest swept), first_unstable_dt (s, the smallest dt whose run is
+    not ok, NaN when none), first_unstable_verdict.
+    """
+    rows = []
+    for (case, engine, integrator), runs in results.groupby(KEYS, sort=False):
+        runs = runs.sort_values("dt")
+        ok = (runs["verdict"] == "ok").to_numpy()
+        failing = np.flatnonzero(~ok)
+        stable = runs["dt"].to_numpy(float)[: failing[0] if len(failing) else len(runs)]
+        first = runs.iloc[failing[0]] if len(failing) else None
+        rows.append(
+            {
+                "case": case,
+                "engine": engine,
+                "integrator": integrator,
+                "largest_stable_dt": float(stable[-1]) if len(stable) else np.nan,
+                "all_stable": not len(failing),
+                "dt_max": float(runs["dt"].max()),
+                "first_unstable_dt": np.nan if first is None else float(first["dt"]),
+                "first_unstable_verdict": None if first is None else first["verdict"],
+            }
+        )
+    columns = [*KEYS, "largest_stable_dt", "all_stable", "dt_max", "first_unstable_dt"]
+    return pd.DataFrame(rows, columns=[*columns, "first_unstable_verdict"])

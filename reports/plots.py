@@ -38,8 +38,16 @@ ERROR = "orientation_error_deg"
 COST = "cost_s_per_s"  # stepping wall time per simulated second
 PAIR = ["engine", "integrator"]
 ERROR_CMAP = matplotlib.colormaps["viridis"]
-# Verdict colours stay clear of viridis: white, light grey, red, dark grey.
-VERDICT_COLOURS = {"no run": "white", "ok": "#e0e0e0", "diverged": "#d62728", "failed": "#404040"}
+# Verdict colours stay clear of viridis (purple through green to yellow): white, light grey,
+# red, orange, pink, dark grey.
+VERDICT_COLOURS = {
+    "no run": "white",
+    "ok": "#e0e0e0",
+    "diverged": "#d62728",
+    "tunnelled": "#ff7f0e",
+    "jitter": "#e377c2",
+    "failed": "#404040",
+}
 
 
 def _index(name: str, known: list[str]) -> int:
@@ -105,7 +113,7 @@ def _relative_deviation(values: np.ndarray) -> np.ndarray:
     return deviation / scale if scale > 0 else deviation
 
 
-def _closest_runs(runs: pd.DataFrame, keys: set[str], dt: float) -> pd.DataFrame:
+def closest_runs(runs: pd.DataFrame, keys: set[str], dt: float) -> pd.DataFrame:
     """Per engine/integrator, the valid run with a trajectory whose dt is closest to `dt` (on a
     log scale), in the order of `runs`."""
     have = runs[runs["key"].isin(keys) & (runs["verdict"] == "ok")]
@@ -119,7 +127,7 @@ def plot_drift(
 ) -> Path | None:
     """Relative energy and angular-momentum error against time (s), log y, one line per
     engine/integrator at the scene's default dt (or the closest swept). None: no trajectory."""
-    chosen = _closest_runs(runs, set(trajectories), scene.dt)
+    chosen = closest_runs(runs, set(trajectories), scene.dt)
     if chosen.empty:
         return None
     fig, (ax_e, ax_l) = _figure(6.5, nrows=2)
@@ -215,10 +223,23 @@ def _cell(verdict: str, error: float, norm: LogNorm | None) -> tuple[tuple, str]
     return to_rgba(VERDICT_COLOURS[category]), "" if category == "no run" else category
 
 
+def pair_rank(pair: tuple[str, str]) -> tuple:
+    """Registry order of an (engine, integrator): engines as registered, integrators as their
+    engine lists them (default first); unknown ones after, by name."""
+    engine, integrator = pair
+    engines = list(ENGINES)
+    integrators = list(ENGINES[engine].integrators) if engine in ENGINES else []
+    k = integrators.index(integrator) if integrator in integrators else len(integrators)
+    return (engines.index(engine) if engine in engines else len(engines), k, engine, integrator)
+
+
 def plot_stability(runs: pd.DataFrame, path: Path) -> Path:
-    """Engine/integrator (rows) x dt (s, columns) coloured by verdict; valid runs with an error
-    by its magnitude (deg, log colour scale), each cell labelled."""
-    pairs = list(dict.fromkeys(zip(runs["engine"], runs["integrator"], strict=True)))
+    """Engine/integrator (rows, in registry order) x dt (s, columns) coloured by verdict
+    (`VERDICT_COLOURS`: ok, diverged, tunnelled, jitter, failed, no run; legend below); valid
+    runs with an error by its magnitude (deg, log colour scale), each cell labelled."""
+    pairs = sorted(
+        dict.fromkeys(zip(runs["engine"], runs["integrator"], strict=True)), key=pair_rank
+    )
     dts = np.sort(runs["dt"].unique())
     errors = runs.loc[(runs["verdict"] == "ok") & (runs[ERROR] > 0), ERROR]
     norm = LogNorm(errors.min(), max(errors.max(), 10 * errors.min())) if len(errors) else None
@@ -242,5 +263,5 @@ def plot_stability(runs: pd.DataFrame, path: Path) -> Path:
         Patch(facecolor=colour, edgecolor="grey", label=legend.get(name, name))
         for name, colour in VERDICT_COLOURS.items()
     ]
-    _legend_below(fig, handles=handles, ncols=len(handles))
+    _legend_below(fig, handles=handles, ncols=len(handles), title="verdict", title_fontsize=8)
     return _save(fig, path)

@@ -1,7 +1,8 @@
 """The report: a sweep's results as tables, figures, `report.md` and a self-contained `index.html`.
 
 `write_report` writes into one directory: results.parquet and results.csv (one row per run,
-`RESULT_COLUMNS`), figures/*.png, report.md (renders on GitHub) and index.html (the same text,
+`RESULT_COLUMNS`), outcomes.parquet and outcomes.csv (one row per run and measured quantity,
+`OUTCOMES_COLUMNS`), figures/*.png, report.md (renders on GitHub) and index.html (the same text,
 figures referenced beside it). Every number comes from the `SweepResult`.
 """
 
@@ -9,7 +10,10 @@ from __future__ import annotations
 
 import html
 import json
+import multiprocessing
+import os
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from datetime import UTC, datetime
 from html.parser import HTMLParser
 from pathlib import Path
@@ -20,7 +24,8 @@ import numpy as np
 import pandas as pd
 
 from comparators.engine import ENGINES
-from comparators.sweep import RESULT_COLUMNS, SweepResult
+from comparators.outcomes import ENERGY_GROWTH_LIMIT, FINAL_FRACTION, FINAL_WINDOW_S, JITTER_SPEED
+from comparators.sweep import OUTCOMES_COLUMNS, RESULT_COLUMNS, SweepResult
 from comparators.trajectory import atomic_path
 from reports import plots
 from reports.convergence import (
@@ -30,6 +35,7 @@ from reports.convergence import (
     POSITION_FLOOR_M,
     cost_to_tolerance,
     fit_orders,
+    largest_stable_dt,
     lowest_front,
 )
 
@@ -57,7 +63,8 @@ SHOWN_WHERE_MEASURED = ("rest_com_height", "shape_error")  # columns dropped whe
 CSS = """
 body { font-family: system-ui, sans-serif; max-width: 60rem; margin: 2rem auto; padding: 0 1rem;
        line-height: 1.45; color: #222; }
-table { border-collapse: collapse; margin: 0.8rem 0; font-size: 0.9rem; }
+table { border-collapse: collapse; margin: 0.8rem 0; font-size: 0.9rem; display: block;
+        overflow-x: auto; }
 th, td { border: 1px solid #bbb; padding: 0.2rem 0.5rem; }
 th { background: #f0f0f0; }
 td { font-variant-numeric: tabular-nums; }
@@ -138,28 +145,61 @@ def write_results(results: pd.DataFrame, out: Path) -> dict[str, Path]:
     return paths
 
 
+def write_outcomes(outcomes: pd.DataFrame, out: Path) -> dict[str, Path]:
+    """outcomes.parquet and outcomes.csv: one row per run and measured quantity, exactly
+    `OUTCOMES_COLUMNS`."""
+    missing = [c for c in OUTCOMES_COLUMNS if c not in outcomes]
+    if missing:
+        raise ValueError(f"outcomes lack column(s) {missing}: expected OUTCOMES_COLUMNS")
+    table = outcomes[OUTCOMES_COLUMNS].reset_index(drop=True)
+    paths = {"outcomes.parquet": out / "outcomes.parquet", "outcomes.csv": out / "outcomes.csv"}
+    with atomic_path(paths["outcomes.parquet"]) as tmp:
+        table.to_parquet(tmp, index=False)
+    with atomic_path(paths["outcomes.csv"]) as tmp:
+        table.to_csv(tmp, index=False)
+    return paths
+
+
 def expected_orders(result: SweepResult) -> dict[tuple[str, str], int]:
     """The sweep's expected orders, completed by what each registered engine declares."""
     declared = {(n, i): p for n, e in ENGINES.items() for i, p in e.orders.items()}
     return declared | result.orders
 
 
-def write_figures(result: SweepResult, fits: pd.DataFrame, out: Path) -> dict[tuple, Path]:
-    """All figures, by (case, kind); kinds without anything to draw are left out."""
-    figures = {}
+def _case_figures(task: tuple) -> dict[tuple, Path]:
+    """One case's figures, by (case, kind): `task` is (case, runs, trajectories, scene, fits,
+    directory)."""
+    case, runs, trajectories, scene, fits, path = task
+    drawn = {
+        "drift": plots.plot_drift(runs, trajectories, scene, path / f"{case}_drift.png"),
+        "convergence": plots.plot_convergence(runs, fits, path / f"{case}_convergence.png"),
+        "work_precision": plots.plot_work_precision(runs, path / f"{case}_work_precision.png"),
+        "stability": plots.plot_stability(runs, path / f"{case}_stability.png"),
+    }
+    return {(case, kind): p for kind, p in drawn.items() if p is not None}
+
+
+def write_figures(
+    result: SweepResult, fits: pd.DataFrame, out: Path, jobs: int | None = None
+) -> dict[tuple, Path]:
+    """All figures, by (case, kind); kinds without anything to draw are left out.
+
+    Cases are drawn in `jobs` processes (default: one per core, at most one per case): Agg
+    rendering is CPU-bound and the cases are independent.
+    """
+    tasks = []
     for case, runs in result.results.groupby("case", sort=False):
-        own_fits = fits[fits["case"] == case]
-        path = out / FIGURES
-        drawn = {
-            "drift": plots.plot_drift(
-                runs, result.trajectories, result.scenes[case], path / f"{case}_drift.png"
-            ),
-            "convergence": plots.plot_convergence(runs, own_fits, path / f"{case}_convergence.png"),
-            "work_precision": plots.plot_work_precision(runs, path / f"{case}_work_precision.png"),
-            "stability": plots.plot_stability(runs, path / f"{case}_stability.png"),
-        }
-        figures |= {(case, kind): p for kind, p in drawn.items() if p is not None}
-    return figures
+        scene = result.scenes[case]
+        drawn = plots.closest_runs(runs, set(result.trajectories), scene.dt)["key"]
+        trajectories = {key: result.trajectories[key] for key in drawn}
+        tasks.append((case, runs, trajectories, scene, fits[fits["case"] == case], out / FIGURES))
+    jobs = min(len(tasks), jobs or os.cpu_count() or 1)
+    if jobs <= 1:
+        drawn = [_case_figures(task) for task in tasks]
+    else:
+        with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("fork")) as pool:
+            drawn = list(pool.map(_case_figures, tasks))
+    return {key: path for figures in drawn for key, path in figures.items()}
 
 
 # ---- sections ---------------------------------------------------------------------------------
@@ -183,9 +223,10 @@ def _header(result: SweepResult, command: str) -> list[str]:
         f"and {result.cached} taken from the results cache; executor: {_escape(result.executor)}.",
         "",
         "Sections: how the timings were measured; the catalog; per case its metrics, drift over "
-        "time, convergence in dt, work-precision and stability map; cost to reach a tolerance; "
+        "time, convergence in dt, work-precision, stability map and measured outcomes; the "
+        "largest stable dt; contact validation against closed forms; cost to reach a tolerance; "
         "the parity manifest; machine and versions. All numbers are in `results.csv` "
-        "(one row per run).",
+        "(one row per run) and `outcomes.csv` (one row per run and measured quantity).",
     ]
 
 
@@ -358,11 +399,173 @@ def _case(result: SweepResult, case: str, fits: pd.DataFrame, figures: dict, out
         "",
         "### Stability map",
         "",
-        "How to read: where each engine and integrator breaks as dt grows: red diverged, dark "
-        "grey failed; valid runs are coloured by their orientation error.",
+        "How to read: where each engine and integrator breaks as dt grows: red diverged (a "
+        "non-finite state, or the energy grown past "
+        f"{ENERGY_GROWTH_LIMIT:g} times what the scene holds), orange tunnelled (a particle "
+        "centre behind a plane), pink jitter (a body that should rest still moves faster than "
+        f"{JITTER_SPEED:g} m/s at the end), dark grey failed (no run); valid runs are coloured "
+        "by their orientation error, light grey where none is measured.",
         "",
         _image(figures, case, "stability", out, "stability map"),
+        *_case_outcomes(result, case),
     ]
+
+
+# ---- stability and outcomes -------------------------------------------------------------------
+
+
+def _pair_label(engine: str, integrator: str) -> str:
+    return f"{engine} {integrator}"
+
+
+def _stable_cell(row) -> str:
+    """ "≥ dt_max" when every swept dt is ok, else the largest stable dt (or "none") and the
+    verdict of the first failing dt."""
+    if row.all_stable:
+        return f"≥ {row.dt_max:.3g}"
+    failure = str(row.first_unstable_verdict)
+    failure = "failed" if failure.startswith("failed") else failure
+    stable = "none" if np.isnan(row.largest_stable_dt) else f"{row.largest_stable_dt:.3g}"
+    return f"{stable} ({failure} at {row.first_unstable_dt:.3g})"
+
+
+def _largest_stable(result: SweepResult) -> list[str]:
+    stable = largest_stable_dt(result.results)
+    lines = [
+        "## Largest stable dt",
+        "",
+        "How to read: per case (rows) and engine/integrator (columns), the largest swept dt (s) "
+        "whose run and every run at a smaller dt have the verdict ok, with in parentheses the "
+        "verdict and dt of the first run that is not; ≥ dt: every swept dt is ok, the limit lies "
+        "beyond the sweep; none: even the smallest swept dt fails. A case swept at one dt only "
+        "(the quick report's hard cases) says ok or not at its default dt.",
+        "",
+    ]
+    if stable.empty:
+        return [*lines, "No runs."]
+    stable = stable.assign(
+        pair=[_pair_label(r.engine, r.integrator) for r in stable.itertuples()],
+        cell=[_stable_cell(r) for r in stable.itertuples()],
+    )
+    table = stable.pivot(index="case", columns="pair", values="cell")
+    table = table.reindex(index=list(dict.fromkeys(stable["case"])))
+    pairs = sorted(dict.fromkeys(zip(stable["engine"], stable["integrator"], strict=True)))
+    table = table.reindex(columns=[_pair_label(*p) for p in sorted(pairs, key=plots.pair_rank)])
+    return [*lines, markdown_table(table.reset_index(), {c: _text for c in table.columns})]
+
+
+def _outcome_cell(measured: float, error: float, errors: pd.Series) -> str:
+    """ "measured (error)" at the default dt, and "[min, max]" of the error over the swept dts
+    when there are several."""
+    if _missing(measured):
+        return MISSING
+    cell = f"{measured:.4g}"
+    if not _missing(error):
+        cell += f" ({error:+.2g})"
+    errors = errors.dropna()
+    if len(errors) > 1:
+        cell += f" [{errors.min():+.2g}, {errors.max():+.2g}]"
+    return cell
+
+
+def outcome_table(outcomes: pd.DataFrame, default_dt: float) -> pd.DataFrame:
+    """One case's outcomes as a table: a row per quantity (with its unit and closed form), a
+    column per engine/integrator holding `_outcome_cell` at `default_dt` (or the closest swept
+    dt on a log scale when the run at `default_dt` is missing)."""
+    quantities = list(dict.fromkeys(outcomes["quantity"]))
+    pairs = dict.fromkeys(zip(outcomes["engine"], outcomes["integrator"], strict=True))
+    pairs = sorted(pairs, key=plots.pair_rank)
+    rows = []
+    for quantity in quantities:
+        own = outcomes[outcomes["quantity"] == quantity]
+        expected = own["expected"].dropna()
+        row = {
+            "quantity": f"{quantity} ({own['unit'].iloc[0]})",
+            "closed form": f"{expected.iloc[0]:.4g}" if len(expected) else MISSING,
+        }
+        for engine, integrator in pairs:
+            runs = own[(own["engine"] == engine) & (own["integrator"] == integrator)]
+            cell = MISSING
+            if len(runs):
+                distance = np.abs(np.log(runs["dt"].to_numpy(float) / default_dt))
+                at = runs.iloc[int(np.argmin(distance))]
+                cell = _outcome_cell(at["measured"], at["error"], runs["error"])
+            row[_pair_label(engine, integrator)] = cell
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+OUTCOMES_HOW_TO_READ = (
+    "How to read: per quantity (unit), its closed form and per engine/integrator the value "
+    "measured at the case's default dt from the trajectory, its error (measured - closed form) "
+    "in parentheses and, when several dts were swept, the range of that error over them in "
+    "brackets; – where there is no closed form or no measurement. rebound_ratio: mean over the "
+    "first bounces of the COM's normal rebound over approach speed, each carried ballistically "
+    "to the floor; apex_height_k: clearance of the lowest particle surface at the k-th apex; "
+    "stopping distance and time: until the COM speed stays below 1 mm/s; slope_acceleration: "
+    "least-squares fit of the downhill COM displacement, slides 1 or sticks 0; creep, "
+    "jitter_rms (RMS COM speed) and penetration (deepest particle surface below the floor) over "
+    f"the final window (the last {FINAL_FRACTION:.0%} of the run, at most {FINAL_WINDOW_S:g} s), "
+    "whose closed form at rest is 0; standing 1 or fallen 0 and top_drift of a stack; momentum "
+    "changes relative to the bodies' summed momenta; max_penetration: the deepest any particle "
+    "surface went below a plane (no closed form; beyond the particle radius is a tunnel); "
+    "flip_period: mean time between sign changes of the intermediate principal axis's component "
+    "along the angular momentum (the flips of a spin near that axis; half the nutation period "
+    "of a spin near another), against the exact solution's at the same sample times."
+)
+
+
+def _outcomes_for(result: SweepResult, case: str) -> pd.DataFrame:
+    return result.outcomes[result.outcomes["case"] == case]
+
+
+def _case_outcomes(result: SweepResult, case: str) -> list[str]:
+    """Outcomes of a contact-free case, in its own section (contact cases have theirs in the
+    contact validation section)."""
+    scene = result.scenes[case]
+    own = _outcomes_for(result, case)
+    if scene.has_contact or own.empty:
+        return []
+    table = outcome_table(own, scene.dt)
+    how = (
+        "How to read: per quantity (unit), its closed form and per engine/integrator the value "
+        "measured at the case's default dt, its error (measured - closed form) in parentheses "
+        "and, with several dts swept, the error's range over them in brackets. flip_period: mean "
+        "time between sign changes of the intermediate principal axis's component along the "
+        "angular momentum (the flips of a spin near that axis; half the nutation period of a "
+        "spin near another), against the exact solution's at the same sample times."
+    )
+    return ["", "### Outcomes", "", how, "", markdown_table(table)]
+
+
+def _contact_validation(result: SweepResult) -> list[str]:
+    lines = [
+        "## Contact validation",
+        "",
+        "What every engine does on the cases with contact, measured from its trajectories the "
+        "same way for all (`comparators.outcomes`), against what physics predicts in closed form "
+        "where the case states it.",
+    ]
+    cases = [
+        case
+        for case, scene in result.scenes.items()
+        if scene.has_contact and not _outcomes_for(result, case).empty
+    ]
+    if not cases:
+        return [*lines, "", "No case with contact has measured outcomes."]
+    lines += ["", OUTCOMES_HOW_TO_READ]
+    for case in cases:
+        scene = result.scenes[case]
+        table = outcome_table(_outcomes_for(result, case), scene.dt)
+        lines += [
+            "",
+            f"### `{case}`",
+            "",
+            f"{_escape(scene.description)} Default dt {scene.dt:g} s.",
+            "",
+            markdown_table(table),
+        ]
+    return lines
 
 
 def _cost(results: pd.DataFrame) -> list[str]:
@@ -513,6 +716,7 @@ def render_markdown(
     """report.md's text; `figures` by (case, kind), paths under `out`."""
     parts = [_header(result, command), _timing(result.results), _catalog(result)]
     parts += [_case(result, case, fits, figures, out) for case in result.scenes]
+    parts += [_largest_stable(result), _contact_validation(result)]
     parts += [_cost(result.results), _parity(result), _versions(result)]
     return "\n".join("\n".join(p) + "\n" for p in parts)
 
@@ -529,6 +733,7 @@ def write_report(result: SweepResult, out: Path, command: str) -> dict[str, Path
     out = Path(out)
     (out / FIGURES).mkdir(parents=True, exist_ok=True)
     written = write_results(result.results, out)
+    written |= write_outcomes(result.outcomes, out)
     fits = fit_orders(result.results, expected_orders(result))
     figures = write_figures(result, fits, out)
     text = render_markdown(result, command, fits, figures, out)

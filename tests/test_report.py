@@ -14,7 +14,8 @@ import pytest
 from cases import CATALOG
 from comparators import ENGINES, run
 from comparators.metrics import summarize
-from comparators.sweep import RESULT_COLUMNS, SweepResult
+from comparators.outcomes import outcomes
+from comparators.sweep import OUTCOMES_COLUMNS, RESULT_COLUMNS, SweepResult
 from reports.convergence import (
     ERROR_CEILING_DEG,
     ERROR_FLOOR_DEG,
@@ -67,7 +68,7 @@ def result_row(traj, scene) -> dict:
 
 def build_result(scenes, pairs, dts) -> SweepResult:
     """Run every scene x (engine, integrator) x dt directly and collect a SweepResult."""
-    rows, trajectories = [], {}
+    rows, trajectories, measured = [], {}, []
     for scene in scenes:
         for engine, integrator in pairs:
             for dt in dts:
@@ -75,6 +76,8 @@ def build_result(scenes, pairs, dts) -> SweepResult:
                 row = result_row(traj, scene)
                 rows.append(row)
                 trajectories[row["key"]] = traj
+                tags = {"case": scene.name, "engine": engine, "integrator": integrator, "dt": dt}
+                measured.append(outcomes(traj, scene).assign(**tags)[OUTCOMES_COLUMNS])
     results = pd.DataFrame(rows, columns=RESULT_COLUMNS)
     return SweepResult(
         scenes={s.name: s for s in scenes},
@@ -91,6 +94,7 @@ def build_result(scenes, pairs, dts) -> SweepResult:
         executor="in-process loop (test)",
         computed=len(rows),
         orders={(e, i): ENGINES[e].orders[i] for e, i in pairs},
+        outcomes=pd.concat(measured, ignore_index=True),
     )
 
 
@@ -182,7 +186,8 @@ def test_cost_to_tolerance():
 
 def test_report_files(sweep, report):
     out, written = report
-    for name in ("results.parquet", "results.csv", "report.md", "index.html"):
+    files = ("results.parquet", "results.csv", "outcomes.parquet", "outcomes.csv", "report.md")
+    for name in (*files, "index.html"):
         assert written[name] == out / name and (out / name).is_file()
     figures = [name for name in written if name.startswith("figures/")]
     kinds = ("drift", "convergence", "work_precision", "stability")
@@ -233,6 +238,8 @@ def test_report_with_failed_and_diverged_runs(sweep, tmp_path):
         [
             base.copy().to_dict() | {"dt": 0.04, "verdict": "diverged", "key": "d"},
             base.copy().to_dict() | {"dt": 0.08, "verdict": "failed: parity mass", "key": "f"},
+            base.copy().to_dict() | {"dt": 0.16, "verdict": "tunnelled", "key": "t"},
+            base.copy().to_dict() | {"dt": 0.32, "verdict": "jitter", "key": "j"},
         ]
     )
     for col in ["wall_s", "steps_per_s", "orientation_error_deg", "energy_drift"]:
@@ -242,6 +249,62 @@ def test_report_with_failed_and_diverged_runs(sweep, tmp_path):
     )
     written = write_report(result, tmp_path, "test")
     text = written["report.md"].read_text()
-    assert "diverged" in text and "failed in 1 of 6 runs: failed: parity mass" in text
+    assert "diverged" in text and "failed in 1 of 8 runs: failed: parity mass" in text
     assert "figures/tumbling_box_stability.png" in written
     assert missing_references(written["index.html"]) == []
+    # largest stable dt: 0.02 for the pair with the broken runs, every swept dt for the others
+    stable = text.split("## Largest stable dt")[1].split("\n## ")[0]
+    row = next(line for line in stable.splitlines() if line.startswith(r"| tumbling\_box"))
+    base_pair = f"{base['engine']} {base['integrator']}"
+    header = next(line for line in stable.splitlines() if line.startswith("| case"))
+    cells = {h.strip(): c.strip() for h, c in zip(header.split("|"), row.split("|"), strict=True)}
+    assert cells.pop(base_pair) == "0.02 (diverged at 0.04)"
+    assert {c for k, c in cells.items() if k not in ("", "case")} == {"≥ 0.02"}
+
+
+def test_largest_stable_dt():
+    from reports.convergence import largest_stable_dt
+
+    def results(verdicts):
+        return pd.DataFrame(
+            {"case": "c", "engine": "e", "integrator": "i", "dt": [0.001, 0.002, 0.004, 0.008]}
+        ).assign(verdict=verdicts)
+
+    def first(verdicts):
+        return largest_stable_dt(results(verdicts)).iloc[0]
+
+    stable = first(["ok", "ok", "jitter", "ok"])  # ok again above the first failure: not stable
+    assert (stable["largest_stable_dt"], stable["all_stable"]) == (0.002, False)
+    assert (stable["first_unstable_dt"], stable["first_unstable_verdict"]) == (0.004, "jitter")
+    every = first(["ok"] * 4)
+    assert (every["largest_stable_dt"], every["all_stable"], every["dt_max"]) == (
+        0.008,
+        True,
+        0.008,
+    )
+    assert np.isnan(first(["tunnelled", "ok", "ok", "ok"])["largest_stable_dt"])
+
+
+def test_contact_validation_section(tmp_path):
+    """A contact case with a closed-form outcome gets a table: quantity, closed form, and each
+    engine/integrator's measurement (error) at the default dt, [error range] over the sweep."""
+    scene = CATALOG["dropped_cube"]
+    result = build_result([scene], [("reference", "splitting")], (0.02, 0.01))
+    written = write_report(result, tmp_path, "test")
+    for name in ("outcomes.csv", "outcomes.parquet"):
+        table = (
+            pd.read_csv(tmp_path / name)
+            if name.endswith("csv")
+            else pd.read_parquet(tmp_path / name)
+        )
+        assert list(table.columns) == OUTCOMES_COLUMNS
+        assert len(table) == len(result.outcomes) > 0
+    text = written["report.md"].read_text()
+    section = text.split("## Contact validation")[1].split("\n## ")[0]
+    assert "### `dropped_cube`" in section and "How to read" in section
+    rest = r"| rest\_com\_height (m)"  # Markdown-escaped
+    row = next(line for line in section.splitlines() if line.startswith(rest))
+    closed_form, measured = (cell.strip() for cell in row.split("|")[2:4])
+    assert closed_form == "0.7"
+    assert measured.startswith("0.7 (") and "[" in measured  # value (error) [range over dts]
+    assert "≥ 0.02" in text.split("## Largest stable dt")[1]

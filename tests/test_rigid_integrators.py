@@ -8,7 +8,7 @@ from cases.builders import box_corners
 from cases.exact import exact_states
 from comparators import run
 from comparators.metrics import body_arrays, conserved_quantities, pose_errors, relative_drift
-from reference_sim.quaternion import quats_to_matrices
+from comparators.outcomes import particle_positions
 from reference_sim.simulate import ORDERS
 
 RIGID = ("euler", "splitting", "rk4")
@@ -22,19 +22,12 @@ L_RTOL = 1e-12
 ORDER_SLACK = 0.25
 
 
-def _particles_world(traj, scene, body_index=0):
-    body = scene.bodies[body_index]
-    a = body_arrays(traj, body.name)
-    r = quats_to_matrices(np.ascontiguousarray(a["q"]))
-    return a["x"][:, None, :] + np.einsum("sij,nj->sni", r, body.positions - body.com)
-
-
 @pytest.mark.parametrize("integrator", RIGID)
 @pytest.mark.parametrize("case", sorted(CATALOG))
 def test_rigid_integrators_keep_distances(case, integrator):
     scene = CATALOG[case]
     traj = run(scene, "reference", integrator)
-    p = _particles_world(traj, scene)
+    p = particle_positions(traj, scene, 0)
     d = np.linalg.norm(p[:, :, None] - p[:, None, :], axis=-1)
     err = np.abs(d - d[:1]).max()
     assert err < RIGIDITY_ATOL, (

@@ -1,0 +1,714 @@
+"""Outcomes measured from any engine's trajectory and the scene: each run's verdict, and the
+quantities physics predicts in closed form (rebound ratio, apex heights, stopping distance and
+time, slope acceleration, rest, momentum, flip period).
+
+Everything here reads the trajectory table (COM position and velocity, orientation, angular
+velocity per sample; `comparators.trajectory`) and the scene, never an engine's internals, so
+every engine is measured the same way. What is measured is decided by what the scene states (its
+`Expected` fields, number of bodies, planes, gravity), never by its name: a case loaded from TOML
+gets the same treatment as a catalog case.
+
+Particles are placed rigidly from x, q and each body's t = 0 offsets (`particle_positions`). A
+deforming engine (the seed) adds a `shape_error` column: at samples where its shape has changed
+by more than RIGID_SHAPE_RTOL the rigid placement is not where its particles are, so their
+distances to planes are unknown there (NaN, left out of every measurement) and only the COM is
+tested for tunnelling (the COM of a cluster lies inside its particles' hull, so a COM behind a
+plane means particles behind it too).
+
+Verdict, in precedence order:
+  "diverged"   a non-finite state, or total energy above its initial value by more than
+               ENERGY_GROWTH_LIMIT times the scene's energy scale (`energy_scale`);
+  "tunnelled"  at some sample a particle deeper below a plane than its radius: its centre on the
+               wrong side of the plane;
+  "jitter"     a scene that expects rest (`Expected.rest_com_height`) whose body still moves,
+               some particle faster than JITTER_SPEED, in the final window (`final_window`);
+  "ok"         none of these.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from cases.exact import EQUAL_MOMENTS_RTOL, exact_states, exact_trajectory_available
+from cases.scene import Body, Plane, Scene
+from comparators.metrics import REST_SPEED, body_arrays, conserved_quantities, support_plane
+from comparators.trajectory import Trajectory
+from reference_sim.quaternion import quats_to_matrices
+
+OUTCOME_COLUMNS = ["quantity", "measured", "expected", "error", "unit"]
+VERDICTS = ("ok", "diverged", "tunnelled", "jitter")  # besides "failed: <reason>" (no run)
+
+# Energy growth past which a run has diverged, relative to `energy_scale`: an order of magnitude,
+# a blow-up rather than an error. Nominally correct integrators stay far below it (reference
+# euler 0.28 on tumbling_box at dt 0.02; MuJoCo Euler and PyBullet multibody at most 2.1, over the
+# 100 s of tumbling_box_long at twice its dt); a rigid integrator that keeps L exact cannot exceed
+# L^2 / (2 I_min), where the reference euler saturates on tumbling_box_long (growth 0.999 at dt
+# 0.01, 1.0003 at 0.02), so a bound of 1 would split that one state by rounding. Past 10: the
+# seed's inflating rotation update (36 on tumbling_box at dt 0.02, 1e7 on tumbling_box_long, 1e193
+# on high_spin) and whatever else blows up before it reaches inf or NaN.
+ENERGY_GROWTH_LIMIT = 10.0
+# A body that should rest "jitters" when some particle still moves faster than this in the final
+# window. It is metrics.REST_SPEED, the suite's definition of rest: 1 mm/s is far below the motion
+# of any case and 150 times the largest resting speed of any engine on dropped_cube (PyBullet,
+# 6e-6 m/s; MuJoCo 1e-10, the reference 3e-14).
+JITTER_SPEED = REST_SPEED
+# The final window, where a body that should rest must be resting: the last quarter of the run,
+# at most 10 s. Cases give their bodies most of the run to settle (dropped_cube rests after 2.0
+# to 2.9 s of its 5 s in every engine); 10 s is the jitter window of a 60 s rest.
+FINAL_FRACTION = 0.25
+FINAL_WINDOW_S = 10.0
+# Relative change of inter-particle distances (`shape_error`) below which a sample's rigid
+# placement of the particles is theirs to 1e-6 of the body's size: micrometres, against
+# particle radii of centimetres.
+RIGID_SHAPE_RTOL = 1e-6
+# Rebound ratio: the mean over the bounces whose apex heights the case states, else over the
+# first REBOUND_BOUNCES impacts (later ones are slow, at the contact's resolution). Impacts
+# approaching slower than MIN_IMPACT_FRACTION of the fastest are contact noise, not bounces (a
+# body resting in a soft contact oscillates at up to 1e-5 of it).
+REBOUND_BOUNCES = 3
+MIN_IMPACT_FRACTION = 0.01
+# Clearances below this (m) are the plane itself: metre-scale coordinates round to ~1e-16 m, which
+# carried ballistically (sqrt(2 g c)) would read as a rebound of 6e-8 m/s.
+CLEARANCE_ROUNDING = 1e-12
+# A sliding body has stopped once its COM speed stays below this (m/s): REST_SPEED again. A body
+# decelerating at mu g >= 1 m/s^2 covers 0.5 um after falling below it.
+STOP_SPEED = REST_SPEED
+# Slope acceleration is fitted after this fraction of the run: soft contacts (MuJoCo, PyBullet)
+# take a few steps to reach their steady penetration on a body placed on the plane.
+SLOPE_SETTLE_FRACTION = 0.1
+# A stack stands while every body's COM stays within this of where it started (m): far beyond
+# soft-contact settling (1e-4 m), well below a tenth of a cube's edge.
+STAND_DISTANCE = 0.05
+# A body starts in contact when a particle surface is this close to a plane or another body (m):
+# placed touching, to rounding of metre-scale coordinates, with room for a placement by hand.
+TOUCH_DISTANCE = 1e-6
+
+
+# ---- one run's arrays --------------------------------------------------------------------------
+
+
+class RunData:
+    """One run's trajectory and scene, with the arrays every measurement reads computed once:
+    per body the sample arrays (`arrays`: t, x, q, v, w), the rigidly placed particles, their
+    distances to planes, and the conserved quantities."""
+
+    def __init__(self, traj: Trajectory, scene: Scene):
+        self.traj, self.scene = traj, scene
+        self._memo: dict = {}
+
+    def _cached(self, key, compute):
+        if key not in self._memo:
+            self._memo[key] = compute()
+        return self._memo[key]
+
+    def arrays(self, k: int) -> dict[str, np.ndarray]:
+        """`comparators.metrics.body_arrays` of body `k` (scene order)."""
+        return self._cached(
+            ("arrays", k), lambda: body_arrays(self.traj, self.scene.bodies[k].name)
+        )
+
+    def rigid(self, k: int) -> np.ndarray:
+        """(S,) True where the rigid placement is body k's particles (see the module doc)."""
+
+        def compute():
+            table = self.traj.table
+            if "shape_error" not in table:
+                return np.ones(len(self.arrays(k)["t"]), dtype=bool)
+            rows = table["body"].to_numpy() == self.scene.bodies[k].name
+            return table["shape_error"].to_numpy()[rows] <= RIGID_SHAPE_RTOL
+
+        return self._cached(("rigid", k), compute)
+
+    def particles(self, k: int) -> np.ndarray:
+        """(S, n, 3) world positions of body k's particles, placed rigidly from x and q."""
+
+        def compute():
+            body, a = self.scene.bodies[k], self.arrays(k)
+            r = quats_to_matrices(np.ascontiguousarray(a["q"]))
+            return a["x"][:, None, :] + np.einsum("sij,nj->sni", r, body.positions - body.com)
+
+        return self._cached(("particles", k), compute)
+
+    def distances(self, k: int, plane: Plane) -> np.ndarray:
+        """(S, n) signed distance (m) of body k's particle centres from `plane`, positive on its
+        free side; NaN at deforming samples."""
+
+        def compute():
+            d = (self.particles(k) - plane.point) @ plane.unit_normal
+            d[~self.rigid(k)] = np.nan
+            return d
+
+        return self._cached(("distances", k, plane), compute)
+
+    def clearance(self, k: int, plane: Plane) -> np.ndarray:
+        """(S,) gap (m) between `plane` and body k's lowest particle surface; negative when it
+        penetrates; NaN at deforming samples."""
+        radius = self.scene.bodies[k].particle_radius
+        return self._cached(
+            ("clearance", k, plane), lambda: self.distances(k, plane).min(axis=1) - radius
+        )
+
+    def conserved(self) -> pd.DataFrame:
+        """`comparators.metrics.conserved_quantities` of the run."""
+        return self._cached("conserved", lambda: conserved_quantities(self.traj, self.scene))
+
+    def finite(self) -> bool:
+        """True when every value of the table is finite."""
+
+        def compute():
+            values = self.traj.table.drop(columns=["body"]).to_numpy(dtype=float)
+            return bool(np.isfinite(values).all())
+
+        return self._cached("finite", compute)
+
+
+def particle_positions(traj: Trajectory, scene: Scene, body_index: int) -> np.ndarray:
+    """(S, n, 3) world positions of one body's particles at every sample, placed rigidly from
+    its COM x, orientation q and the particles' offsets from the COM at t = 0."""
+    return RunData(traj, scene).particles(body_index)
+
+
+def clearance(traj: Trajectory, scene: Scene, body_index: int, plane: Plane) -> np.ndarray:
+    """(S,) gap (m) between `plane` and the body's lowest particle surface (`RunData.clearance`)."""
+    return RunData(traj, scene).clearance(body_index, plane)
+
+
+def particle_speeds(run: RunData, k: int) -> np.ndarray:
+    """(S, n) speed (m/s) of each particle of rigidly moving body k: |v + omega x r|."""
+    a = run.arrays(k)
+    r = run.particles(k) - a["x"][:, None, :]
+    return np.linalg.norm(a["v"][:, None, :] + np.cross(a["w"][:, None, :], r), axis=-1)
+
+
+# ---- what the scene states ------------------------------------------------------------------
+
+
+def _contact_planes(scene: Scene) -> tuple[Plane, ...]:
+    return scene.planes if scene.contact is not None else ()
+
+
+def _plane_under(scene: Scene, body: Body) -> Plane | None:
+    """The plane a body starts nearest to among those facing against gravity: what it slides on."""
+    g = np.asarray(scene.gravity)
+    facing = [p for p in _contact_planes(scene) if np.dot(p.unit_normal, g) < 0]
+    if not facing:
+        return None
+    return min(facing, key=lambda p: ((body.positions - p.point) @ p.unit_normal).min())
+
+
+def final_window(t: np.ndarray) -> np.ndarray:
+    """(S,) True for the samples in the run's final window (FINAL_FRACTION, FINAL_WINDOW_S)."""
+    span = min(FINAL_WINDOW_S, FINAL_FRACTION * (t[-1] - t[0]))
+    return t >= t[-1] - span
+
+
+def _touching(scene: Scene, body: Body) -> bool:
+    """True when the body starts in contact: a particle surface within TOUCH_DISTANCE of a plane
+    or of another body's particle."""
+    for plane in _contact_planes(scene):
+        gap = ((body.positions - plane.point) @ plane.unit_normal).min() - body.particle_radius
+        if abs(gap) <= TOUCH_DISTANCE:
+            return True
+    for other in scene.bodies:
+        if other is not body:
+            d = np.linalg.norm(body.positions[:, None] - other.positions[None], axis=-1)
+            if d.min() - body.particle_radius - other.particle_radius <= TOUCH_DISTANCE:
+                return True
+    return False
+
+
+def _starts_at_rest(scene: Scene, body: Body) -> bool:
+    """Placed still and in contact: where it should stay, unlike a body dropped from rest."""
+    still = not any(body.velocity) and not any(body.angular_velocity)
+    return still and _touching(scene, body)
+
+
+def _expects_rest(scene: Scene) -> bool:
+    return scene.expected is not None and scene.expected.rest_com_height is not None
+
+
+# ---- verdict ---------------------------------------------------------------------------------
+
+
+def energy_scale(run: RunData) -> float:
+    """The energy the scene can put into motion (J): the initial kinetic energy plus, per body,
+    m |g| h, with h the body's COM height above the support plane (measured along gravity) or,
+    without one, its ballistic drop over the run. When that is 0 (nothing moves and nothing can
+    fall) it is the kinetic energy of the whole system moving at REST_SPEED."""
+    scene = run.scene
+    c = run.conserved()
+    t = c["t"].to_numpy()
+    kinetic = float(c["kinetic_translational"].iloc[0] + c["kinetic_rotational"].iloc[0])
+    g = np.asarray(scene.gravity, dtype=float)
+    g_norm = float(np.linalg.norm(g))
+    mass = sum(b.mass for b in scene.bodies)
+    floor = 0.5 * mass * REST_SPEED**2
+    if g_norm == 0.0:
+        return kinetic if kinetic > 0 else floor
+    down = g / g_norm
+    plane = support_plane(scene) if scene.contact is not None else None
+    up = -float(np.dot(plane.unit_normal, down)) if plane is not None else 0.0
+    duration = t[-1] - t[0]
+    drop = 0.0
+    for k, body in enumerate(scene.bodies):
+        a = run.arrays(k)
+        if up > 0:
+            h = float(np.dot(a["x"][0] - plane.point, plane.unit_normal)) / up
+        else:
+            h = max(0.0, float(np.dot(a["v"][0], down))) * duration + 0.5 * g_norm * duration**2
+        drop += body.mass * g_norm * max(h, 0.0)
+    scale = kinetic + drop
+    return scale if scale > 0 else floor
+
+
+def energy_growth(traj: Trajectory, scene: Scene, run: RunData | None = None) -> float:
+    """Largest gain of total energy over its initial value, relative to `energy_scale`."""
+    run = run or RunData(traj, scene)
+    energy = run.conserved()["energy"].to_numpy()
+    return float((energy.max() - energy[0]) / energy_scale(run))
+
+
+def tunnelled(run: RunData) -> bool:
+    """True when at some sample a particle's centre is behind a plane (its depth below the plane
+    exceeds its radius); at deforming samples, when the COM is."""
+    for k in range(len(run.scene.bodies)):
+        com = run.arrays(k)["x"][~run.rigid(k)]
+        for plane in _contact_planes(run.scene):
+            if (run.distances(k, plane) < 0).any():
+                return True
+            if ((com - plane.point) @ plane.unit_normal < 0).any():
+                return True
+    return False
+
+
+def jitters(run: RunData) -> bool:
+    """True when the scene expects rest and some body's particle moves faster than JITTER_SPEED
+    in the final window."""
+    if not _expects_rest(run.scene):
+        return False
+    for k in range(len(run.scene.bodies)):
+        window = final_window(run.arrays(k)["t"])
+        if (particle_speeds(run, k)[window] > JITTER_SPEED).any():
+            return True
+    return False
+
+
+def verdict(traj: Trajectory, scene: Scene, run: RunData | None = None) -> str:
+    """ "diverged", "tunnelled", "jitter" or "ok", in that precedence (see the module doc)."""
+    run = run or RunData(traj, scene)
+    if not run.finite():
+        return "diverged"
+    with np.errstate(over="ignore", invalid="ignore"):  # a blown-up run's energy overflows
+        if not energy_growth(traj, scene, run) <= ENERGY_GROWTH_LIMIT:
+            return "diverged"
+    if tunnelled(run):
+        return "tunnelled"
+    if jitters(run):
+        return "jitter"
+    return "ok"
+
+
+# ---- measurements ------------------------------------------------------------------------------
+# Each returns rows (quantity, measured, expected, unit); none when the scene does not state what
+# it measures. Multi-body scenes prefix per-body quantities with "<body>.".
+
+
+def _label(scene: Scene, body: Body, quantity: str) -> str:
+    return quantity if len(scene.bodies) == 1 else f"{body.name}.{quantity}"
+
+
+def bounces(run: RunData, body_index: int, plane: Plane) -> pd.DataFrame:
+    """Impacts of one body on `plane` under gravity, in order: t (s, the sample of the impact),
+    approach and rebound speed of the COM along the plane normal (m/s), their ratio, and the
+    apex (m): the clearance of the lowest particle surface at the top of the following flight.
+
+    Method: an impact is a sign change of the COM normal velocity v from negative to >= 0 (a
+    speed below STOP_SPEED counts as 0, so a landing without rebound is one too), a top one from
+    positive to <= 0. Each sample's normal speed carried ballistically to the plane,
+    u = sqrt(v^2 + 2 g_n c) with c the clearance of the lowest particle surface (0 when below
+    CLEARANCE_ROUNDING or unknown), is
+    constant in free flight and drops in contact; the approach speed is its largest value on the
+    way down since the previous top, the rebound speed its largest value on the way up to the
+    next top (or the next impact). This is exact for a body that does not rotate in flight,
+    whatever the sample interval and however long the contact lasts (soft contacts, contact
+    margins): the free-flight samples on either side carry the speeds. The apex is c + v^2 / 2 g_n
+    at whichever of the two samples around the top has the smaller |v|: exact in free flight,
+    and with rotation the lowest particle's actual clearance there. A rebound that never reaches
+    a top before the next impact or the end has no apex (NaN). Impacts approaching slower than
+    MIN_IMPACT_FRACTION of the fastest are contact noise and left out.
+    """
+    a = run.arrays(body_index)
+    n = plane.unit_normal
+    g_n = -float(np.dot(run.scene.gravity, n))
+    vn = a["v"] @ n
+    vn = np.where(np.abs(vn) < STOP_SPEED, 0.0, vn)
+    c = run.clearance(body_index, plane)
+    # unknown (deforming) and rounding-level clearances: at the plane
+    lift = np.where(np.isfinite(c) & (c > CLEARANCE_ROUNDING), c, 0.0)
+    u = np.sqrt(vn**2 + 2 * g_n * lift)
+    impacts = np.flatnonzero((vn[:-1] < 0) & (vn[1:] >= 0))
+    tops = np.flatnonzero((vn[:-1] > 0) & (vn[1:] <= 0))
+    rows = []
+    for i, k in enumerate(impacts):
+        earlier = tops[tops < k]
+        down = np.arange(earlier[-1] + 1 if len(earlier) else 0, k + 1)
+        following = impacts[i + 1] if i + 1 < len(impacts) else len(vn) - 1
+        later = tops[(tops > k) & (tops < following)]
+        up = np.arange(k + 1, (later[0] if len(later) else following) + 1)
+        approach = u[down][vn[down] <= 0].max()
+        rising = up[vn[up] >= 0]
+        rebound = u[rising].max() if len(rising) else 0.0
+        apex = np.nan
+        if len(later):
+            m = later[0] + int(abs(vn[later[0] + 1]) < abs(vn[later[0]]))
+            apex = c[m] + vn[m] ** 2 / (2 * g_n)
+        rows.append((a["t"][k], approach, rebound, apex))
+    df = pd.DataFrame(rows, columns=["t", "approach", "rebound", "apex"])
+    if len(df):
+        df = df[df["approach"] >= MIN_IMPACT_FRACTION * df["approach"].max()]
+    df = df.assign(ratio=df["rebound"] / df["approach"])
+    return df.reset_index(drop=True)
+
+
+def _bounce_rows(run: RunData) -> list[tuple]:
+    scene = run.scene
+    expected = scene.expected
+    if expected is None or (expected.rebound_ratio is None and expected.apex_heights is None):
+        return []
+    plane = support_plane(scene)
+    # the bounces the case predicts apexes for, else REBOUND_BOUNCES
+    count = max(1, len(expected.apex_heights)) if expected.apex_heights else REBOUND_BOUNCES
+    rows = []
+    for k, body in enumerate(scene.bodies):
+        found = bounces(run, k, plane) if plane is not None else pd.DataFrame()
+        if expected.rebound_ratio is not None:
+            first = found["ratio"].iloc[:count] if len(found) else []
+            ratio = float(np.mean(first)) if len(first) else np.nan
+            rows.append((_label(scene, body, "rebound_ratio"), ratio, expected.rebound_ratio, "1"))
+        for i, h in enumerate(expected.apex_heights or ()):
+            apex = float(found["apex"].iloc[i]) if i < len(found) else np.nan
+            rows.append((_label(scene, body, f"apex_height_{i + 1}"), apex, h, "m"))
+    return rows
+
+
+def stopping(run: RunData, body_index: int) -> tuple[float, float]:
+    """(distance (m), time (s)) from t = 0 until the COM speed stays below STOP_SPEED.
+
+    The distance is the COM displacement along the support plane (all of it without one) at
+    the first sample of the stopped stretch. The time is refined between the last moving
+    sample and that one by continuing the last sampled deceleration to zero speed: exact for
+    uniform deceleration, otherwise within one sample interval. NaN, NaN: still moving at the end.
+    """
+    a = run.arrays(body_index)
+    speed = np.linalg.norm(a["v"], axis=1)
+    moving = np.flatnonzero(speed >= STOP_SPEED)
+    if len(moving) and moving[-1] == len(speed) - 1:
+        return np.nan, np.nan
+    s = moving[-1] + 1 if len(moving) else 0
+    shift = a["x"][s] - a["x"][0]
+    plane = support_plane(run.scene)
+    if plane is not None:
+        shift = shift - np.dot(shift, plane.unit_normal) * plane.unit_normal
+    t = a["t"]
+    stop = t[s]
+    if s >= 2:
+        decel = (speed[s - 2] - speed[s - 1]) / (t[s - 1] - t[s - 2])
+        if decel > 0:
+            stop = min(t[s], t[s - 1] + speed[s - 1] / decel)
+    return float(np.linalg.norm(shift)), float(stop)
+
+
+def _stopping_rows(run: RunData) -> list[tuple]:
+    scene = run.scene
+    expected = scene.expected
+    if expected is None or (expected.stopping_distance is None and expected.stopping_time is None):
+        return []
+    rows = []
+    for k, body in enumerate(scene.bodies):
+        distance, time = stopping(run, k)
+        if expected.stopping_distance is not None:
+            rows.append(
+                (
+                    _label(scene, body, "stopping_distance"),
+                    distance,
+                    expected.stopping_distance,
+                    "m",
+                )
+            )
+        if expected.stopping_time is not None:
+            rows.append((_label(scene, body, "stopping_time"), time, expected.stopping_time, "s"))
+    return rows
+
+
+def slope_acceleration(run: RunData, body_index: int) -> tuple[float, bool]:
+    """(acceleration (m/s^2), slides) of one body down the plane it starts on.
+
+    The acceleration is the least-squares fit of the COM's downhill displacement s(t) (along
+    gravity's component in the plane) by s0 + v0 t + a t^2 / 2 over the run after its first
+    SLOPE_SETTLE_FRACTION: exact for uniform acceleration, ~0 for a body that sticks. It slides
+    when its COM speed at the end is at least STOP_SPEED. NaN, False: no plane with a downhill
+    direction under it.
+    """
+    plane = _plane_under(run.scene, run.scene.bodies[body_index])
+    if plane is None:
+        return np.nan, False
+    n = plane.unit_normal
+    g = np.asarray(run.scene.gravity, dtype=float)
+    downhill = g - np.dot(g, n) * n
+    if np.linalg.norm(downhill) <= 1e-12 * np.linalg.norm(g):
+        return np.nan, False
+    downhill /= np.linalg.norm(downhill)
+    a = run.arrays(body_index)
+    t, s = a["t"], (a["x"] - a["x"][0]) @ downhill
+    fit = t >= t[0] + SLOPE_SETTLE_FRACTION * (t[-1] - t[0])
+    if fit.sum() < 3 or not np.isfinite(s[fit]).all():
+        return np.nan, False
+    acceleration = 2.0 * np.polyfit(t[fit], s[fit], 2)[0]
+    slides = bool(np.linalg.norm(a["v"][-1]) >= STOP_SPEED)
+    return float(acceleration), slides
+
+
+def _slope_rows(run: RunData) -> list[tuple]:
+    scene = run.scene
+    expected = scene.expected
+    if expected is None or expected.slope_acceleration is None:
+        return []
+    rows = []
+    for k, body in enumerate(scene.bodies):
+        acceleration, slides = slope_acceleration(run, k)
+        a0 = expected.slope_acceleration
+        rows.append((_label(scene, body, "slope_acceleration"), acceleration, a0, "m/s^2"))
+        rows.append((_label(scene, body, "slides"), float(slides), float(a0 > 0), "1/0"))
+    return rows
+
+
+def _rest_height_rows(run: RunData) -> list[tuple]:
+    """The final COM height above the support plane (`comparators.metrics.rest`)."""
+    scene = run.scene
+    if not _expects_rest(scene):
+        return []
+    plane = support_plane(scene)
+    rows = []
+    for k, body in enumerate(scene.bodies):
+        x = run.arrays(k)["x"][-1]
+        height = np.nan if plane is None else float(np.dot(plane.unit_normal, x - plane.point))
+        rows.append(
+            (_label(scene, body, "rest_com_height"), height, scene.expected.rest_com_height, "m")
+        )
+    return rows
+
+
+def resting(run: RunData) -> dict[str, float]:
+    """Rest measured over the final window (`final_window`), largest over the bodies:
+
+    creep: largest COM displacement (m) from its start for a body that starts at rest, else
+      from its position at the start of the final window;
+    jitter_rms: RMS COM speed (m/s) over the final window;
+    penetration: mean over the final window of the depth (m) of the deepest particle surface
+      below the support plane (negative: a gap).
+    """
+    scene = run.scene
+    plane = support_plane(scene)
+    creep, jitter, depths = 0.0, 0.0, []
+    for k, body in enumerate(scene.bodies):
+        a = run.arrays(k)
+        window = final_window(a["t"])
+        origin = a["x"][0] if _starts_at_rest(scene, body) else a["x"][window][0]
+        stretch = slice(None) if _starts_at_rest(scene, body) else window
+        creep = max(creep, float(np.linalg.norm(a["x"][stretch] - origin, axis=1).max()))
+        speed = np.linalg.norm(a["v"][window], axis=1)
+        jitter = max(jitter, float(np.sqrt(np.mean(speed**2))))
+        if plane is not None:
+            depths.append(-run.clearance(k, plane)[window])
+    deepest = np.max(depths, axis=0) if depths else np.array([])  # NaN where any is unknown
+    deepest = deepest[np.isfinite(deepest)]
+    penetration = float(deepest.mean()) if len(deepest) else np.nan
+    return {"creep": creep, "jitter_rms": jitter, "penetration": penetration}
+
+
+def _rest_rows(run: RunData) -> list[tuple]:
+    """Creep, jitter and steady penetration of a scene that expects rest, against 0: a rigid
+    body at rest on a rigid floor stays exactly where it is, still and on the surface."""
+    if not _expects_rest(run.scene):
+        return []
+    r = resting(run)
+    units = {"creep": "m", "jitter_rms": "m/s", "penetration": "m"}
+    return [(name, value, 0.0, units[name]) for name, value in r.items()]
+
+
+def _is_stack(scene: Scene) -> bool:
+    """Several bodies placed at rest under gravity on planes: physics says they stay put."""
+    slope = scene.expected is not None and scene.expected.slope_acceleration is not None
+    return (
+        len(scene.bodies) > 1
+        and scene.has_gravity
+        and bool(_contact_planes(scene))
+        and not slope
+        and all(_starts_at_rest(scene, b) for b in scene.bodies)
+    )
+
+
+def stack(run: RunData) -> dict[str, float]:
+    """standing: 1 when every body's COM stays within STAND_DISTANCE of its start throughout,
+    else 0; top_drift: the largest horizontal (normal to gravity) displacement (m) of the body
+    that starts highest."""
+    bodies = run.scene.bodies
+    g = np.asarray(run.scene.gravity, dtype=float)
+    down = g / np.linalg.norm(g)
+    top = max(range(len(bodies)), key=lambda k: -np.dot(bodies[k].com, down))
+    standing = True
+    for k in range(len(bodies)):
+        x = run.arrays(k)["x"]
+        standing &= bool((np.linalg.norm(x - x[0], axis=1) <= STAND_DISTANCE).all())
+    x = run.arrays(top)["x"]
+    shift = x - x[0]
+    shift -= np.outer(shift @ down, down)
+    return {"standing": float(standing), "top_drift": float(np.linalg.norm(shift, axis=1).max())}
+
+
+def _stack_rows(run: RunData) -> list[tuple]:
+    """Against the closed form of a rigid stack: it stands (1) and nothing drifts (0 m)."""
+    if not _is_stack(run.scene):
+        return []
+    s = stack(run)
+    return [("standing", s["standing"], 1.0, "1/0"), ("top_drift", s["top_drift"], 0.0, "m")]
+
+
+def max_penetration(run: RunData) -> float:
+    """The largest depth (m) of any particle surface below any plane over the run (negative:
+    never touched; NaN: no rigid sample). A depth beyond the particle radius is a tunnel."""
+    depths = [
+        body.particle_radius - run.distances(k, plane)
+        for k, body in enumerate(run.scene.bodies)
+        for plane in _contact_planes(run.scene)
+    ]
+    known = np.concatenate([d[np.isfinite(d)] for d in depths]) if depths else np.array([])
+    return float(known.max()) if len(known) else np.nan
+
+
+def _penetration_rows(run: RunData) -> list[tuple]:
+    """No closed form: how deep an impact goes is the contact model's (and the sampling's)."""
+    if not _contact_planes(run.scene):
+        return []
+    return [("max_penetration", max_penetration(run), np.nan, "m")]
+
+
+def momentum_change(run: RunData) -> dict[str, float]:
+    """Change of total linear and angular momentum (about the system COM) from the first to the
+    last sample, relative to the sum of the bodies' magnitudes at the first: sum m |v| and
+    sum |L_b| (spin plus orbital part about the system COM). Both sums are positive whenever
+    something moves, even when the totals are zero (a head-on collision)."""
+    scene = run.scene
+    c = run.conserved()
+    p = c[["px", "py", "pz"]].to_numpy()
+    L = c[["Lx", "Ly", "Lz"]].to_numpy()
+    arrays = [run.arrays(k) for k in range(len(scene.bodies))]
+    mass = sum(b.mass for b in scene.bodies)
+    com = sum(b.mass * a["x"][0] for b, a in zip(scene.bodies, arrays, strict=True)) / mass
+    v_com = p[0] / mass
+    p_scale, l_scale = 0.0, 0.0
+    for body, a in zip(scene.bodies, arrays, strict=True):
+        r = quats_to_matrices(np.ascontiguousarray(a["q"][:1]))[0]
+        spin = r @ body.inertia @ r.T @ a["w"][0]
+        orbital = body.mass * np.cross(a["x"][0] - com, a["v"][0] - v_com)
+        p_scale += body.mass * np.linalg.norm(a["v"][0])
+        l_scale += np.linalg.norm(spin + orbital)
+
+    def relative(values: np.ndarray, scale: float) -> float:
+        change = float(np.linalg.norm(values[-1] - values[0]))
+        return change / scale if scale > 0 else change
+
+    return {
+        "momentum_change": relative(p, p_scale),
+        "angular_momentum_change": relative(L, l_scale),
+    }
+
+
+def _momentum_rows(run: RunData) -> list[tuple]:
+    """Bodies alone in free space (no gravity, no planes) conserve their total momenta: 0."""
+    scene = run.scene
+    if len(scene.bodies) < 2 or scene.has_gravity or scene.planes:
+        return []
+    return [(name, value, 0.0, "relative") for name, value in momentum_change(run).items()]
+
+
+def _intermediate_axis(body: Body) -> np.ndarray | None:
+    moments, axes = np.linalg.eigh(body.inertia)
+    gap = EQUAL_MOMENTS_RTOL * moments[-1]
+    if moments[1] - moments[0] <= gap or moments[2] - moments[1] <= gap:
+        return None
+    return axes[:, 1]
+
+
+def flip_times(t: np.ndarray, q: np.ndarray, body: Body) -> np.ndarray:
+    """Times (s) at which the body's intermediate principal axis crosses the plane normal to its
+    initial angular momentum L (constant without contact), linearly interpolated between samples.
+
+    For a spin near the intermediate axis along world y (tumbling_box) these are the sign
+    changes of that axis's world y-component: the flips. In general they come twice per period
+    of the body-frame motion of L (its polhode), so for a spin near the largest or smallest axis
+    they are half the nutation period apart. Empty when the intermediate axis is undefined (two
+    equal moments) or the body does not spin."""
+    axis = _intermediate_axis(body)
+    momentum = body.inertia @ np.asarray(body.angular_velocity, dtype=float)
+    if axis is None or not np.linalg.norm(momentum) > 0:
+        return np.array([])
+    s = (quats_to_matrices(np.ascontiguousarray(q)) @ axis) @ (momentum / np.linalg.norm(momentum))
+    k = np.flatnonzero(np.sign(s[:-1]) * np.sign(s[1:]) < 0)
+    return t[k] + (t[k + 1] - t[k]) * s[k] / (s[k] - s[k + 1])
+
+
+def _mean_period(times: np.ndarray) -> float:
+    return float((times[-1] - times[0]) / (len(times) - 1)) if len(times) >= 2 else np.nan
+
+
+def _flip_rows(run: RunData) -> list[tuple]:
+    """The mean time between flips (s) against the exact solution's at the same sample times;
+    for bodies whose exact motion flips at least twice in the run."""
+    scene = run.scene
+    if not exact_trajectory_available(scene):
+        return []
+    rows = []
+    t = run.arrays(0)["t"]
+    exact = None
+    for k, body in enumerate(scene.bodies):
+        if _intermediate_axis(body) is None:
+            continue
+        exact = exact_states(scene, t) if exact is None else exact
+        expected = _mean_period(flip_times(t, exact[k]["q"], body))
+        if np.isnan(expected):
+            continue
+        measured = _mean_period(flip_times(t, run.arrays(k)["q"], body))
+        rows.append((_label(scene, body, "flip_period"), measured, expected, "s"))
+    return rows
+
+
+MEASUREMENTS = (
+    _rest_height_rows,
+    _bounce_rows,
+    _stopping_rows,
+    _slope_rows,
+    _rest_rows,
+    _stack_rows,
+    _penetration_rows,
+    _momentum_rows,
+    _flip_rows,
+)
+
+
+def outcomes(traj: Trajectory, scene: Scene, run: RunData | None = None) -> pd.DataFrame:
+    """Every outcome the scene states or implies, one row each: quantity, measured, expected
+    (closed form, NaN without one), error (measured - expected), unit.
+
+    A run with a non-finite state keeps its rows with measured NaN: nothing it did is a result.
+    """
+    run = run or RunData(traj, scene)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        rows = [row for measure in MEASUREMENTS for row in measure(run)]
+    df = pd.DataFrame(rows, columns=["quantity", "measured", "expected", "unit"])
+    df = df.astype({"measured": float, "expected": float})
+    if not run.finite():
+        df["measured"] = np.nan
+    df["error"] = df["measured"] - df["expected"]
+    return df[OUTCOME_COLUMNS]
