@@ -33,7 +33,6 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-from cases.catalog import CATALOG
 from cases.errors import InputError
 from cases.exact import exact_trajectory_available
 from cases.scene import Scene
@@ -43,6 +42,7 @@ from comparators.metrics import pose_errors_between, summarize
 from comparators.outcomes import OUTCOME_COLUMNS, outcomes
 from comparators.parity import ParityError
 from comparators.trajectory import Trajectory, package_versions
+from reference_sim.simulate import COMPILE_STAGES, compile_stage
 
 # One row per run. Errors are maxima over the run; drifts are relative (comparators.metrics).
 RESULT_COLUMNS = [
@@ -116,11 +116,13 @@ class SweepResult:
 
 # dt sweeps as multiples of each case's default dt. Full: two octaves coarser and four finer
 # reach the asymptotic range of every integrator on the exact cases. Quick: three points, the
-# fewest a convergence fit can use; the hard cases (tag "hard": long runs, small default dt) only
-# at their default dt, to keep `rigidbench report --quick` near its 2-minute budget.
+# fewest a convergence fit can use; the hard cases (tag "hard": long runs, small default dt) and
+# cases simulating more than QUICK_LONG_S (seed_cube's 100 s alone was 60% of the quick sweep)
+# only at their default dt, to keep `rigidbench report --quick` within its 2-minute budget.
 FULL_DT_FACTORS = (2.0, 1.0, 0.5, 0.25, 0.125, 0.0625)
 QUICK_DT_FACTORS = (2.0, 1.0, 0.5)
 QUICK_HARD_DT_FACTORS = (1.0,)
+QUICK_LONG_S = 20.0
 # ... and timed once: the quick report shows their verdicts and outcomes, and repeating their
 # 0.2 to 1 s runs three times for the timing median would cost it ~20 s (the full report and
 # every other case keep REPEATS).
@@ -158,12 +160,13 @@ def plan(
     machine drift during the sweep then falls on every engine alike.
 
     dt sweeps are `dt_factors` times each scene's dt; by default the full factors, or with
-    `quick` the quick ones, and for scenes tagged "hard" QUICK_HARD_DT_FACTORS with at most
-    QUICK_HARD_REPEATS timings.
+    `quick` the quick ones, and for scenes tagged "hard" or longer than QUICK_LONG_S
+    QUICK_HARD_DT_FACTORS with at most QUICK_HARD_REPEATS timings.
     """
 
     def hard(scene: Scene) -> bool:
-        return quick and dt_factors is None and HARD_TAG in scene.tags
+        reduced = HARD_TAG in scene.tags or scene.duration > QUICK_LONG_S
+        return quick and dt_factors is None and reduced
 
     def factors(scene: Scene) -> tuple[float, ...]:
         if dt_factors:
@@ -213,20 +216,16 @@ def execute(spec: RunSpec) -> tuple[Trajectory | None, str | None]:
         return None, f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
 
 
-def _compile(integrator: str) -> None:
-    run(CATALOG["dropped_cube"], "reference", integrator, duration=0.02)
-
-
 def warm_up(engines: list[str]) -> None:
-    """Compile the reference simulator's two step loops in parallel processes (they write
-    numba's cache), then load them here, before workers fork from this process."""
+    """Compile the reference simulator before workers fork from this process: its contact code
+    and the seed in two processes at once (they write numba's cache), then the rigid step loop
+    around the cached contact code here, and load the rest."""
     if "reference" in engines:
-        integrators = ("seed", "splitting")
         ctx = multiprocessing.get_context("fork")
-        with ProcessPoolExecutor(max_workers=len(integrators), mp_context=ctx) as pool:
-            list(pool.map(_compile, integrators))
-        for integrator in integrators:
-            _compile(integrator)
+        with ProcessPoolExecutor(max_workers=2, mp_context=ctx) as pool:
+            list(pool.map(compile_stage, ("contact", "seed")))
+        for stage in COMPILE_STAGES:
+            compile_stage(stage)
 
 
 class LocalExecutor:

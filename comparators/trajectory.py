@@ -13,6 +13,7 @@ import platform
 import tempfile
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
+from functools import cache
 from importlib import metadata
 from pathlib import Path
 
@@ -34,13 +35,19 @@ META_KEY = b"rigidbench"
 
 def package_versions(*names: str) -> dict[str, str]:
     """Versions of Python, rigidbench and the named distributions (missing ones are skipped)."""
+    return dict(_versions(names))
+
+
+@cache
+def _versions(names: tuple[str, ...]) -> tuple[tuple[str, str], ...]:
+    # looked up once per process: a sweep asks for every run
     out = {"python": platform.python_version()}
     for name in ("rigidbench", "numpy", *names):
         try:
             out[name] = metadata.version(name)
         except metadata.PackageNotFoundError:
             pass
-    return out
+    return tuple(out.items())
 
 
 @dataclass(frozen=True)

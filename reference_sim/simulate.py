@@ -5,7 +5,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from reference_sim.model import Model, RigidState, SeedState
+from reference_sim.contact import find_candidates, pre_solve
+from reference_sim.model import (
+    Model,
+    RigidState,
+    SeedState,
+    build_model,
+    rigid_initial_state,
+    seed_initial_state,
+)
 from reference_sim.rigid import INTEGRATORS as RIGID_INTEGRATORS
 from reference_sim.rigid import run_rigid
 from reference_sim.seed import run_seed
@@ -60,3 +68,32 @@ def simulate(
     steps, samples, shape = _call(model, integrator, work, dt, int(n_steps), int(stride))
     wall_s = time.perf_counter() - start
     return SimResult(steps, samples, shape, work, compile_s, wall_s)
+
+
+COMPILE_STAGES = ("contact", "seed", "rigid")
+
+
+def compile_stage(stage: str) -> None:
+    """Compile (or load from numba's cache) one part of the simulator on a tiny scene.
+
+    "contact" and "seed" share nothing and can compile in parallel processes; "rigid" then
+    loads the contact code from the cache and compiles only the integrators around it.
+    """
+    corners = np.array([[x, y, z, 1.0] for x in (0, 1) for y in (0, 1) for z in (0.2, 1.2)])
+    model = build_model(
+        [(corners, 0.2)], (0.0, 0.0, -10.0), [[0.0, 0.0, 0.0]], [[0.0, 0.0, 1.0]], 0.5, 0.5, True
+    )
+    com, velocity, omega = [[0.5, 0.5, 0.7]], [[0.0, 0.0, -1.0]], [[1.0, 0.0, 0.0]]
+    state = rigid_initial_state(model, com, velocity, omega)
+    dt = 0.01
+    if stage == "contact":
+        x, q, v, L = (a.copy() for a in state)
+        cands = find_candidates(model, x, q, v, L, dt)
+        none = np.empty(0, dtype=np.int64)
+        pre_solve(model, x, q, v, L, cands, dt, np.zeros(3), 0.2, none, np.empty((0, 3)))
+    elif stage == "seed":
+        simulate(model, seed_initial_state(model, corners[:, :3], velocity, omega), "seed", dt, 2)
+    elif stage == "rigid":
+        simulate(model, state, "splitting", dt, 2)
+    else:
+        raise ValueError(f"unknown compile stage {stage!r}: expected one of {COMPILE_STAGES}")

@@ -170,9 +170,12 @@ def _case_figures(task: tuple) -> dict[tuple, Path]:
     """One case's figures, by (case, kind): `task` is (case, runs, trajectories, scene, fits,
     directory)."""
     case, runs, trajectories, scene, fits, path = task
+    converges = runs["dt"].nunique() >= MIN_FIT_POINTS  # fewer dt: no line worth drawing
     drawn = {
         "drift": plots.plot_drift(runs, trajectories, scene, path / f"{case}_drift.png"),
-        "convergence": plots.plot_convergence(runs, fits, path / f"{case}_convergence.png"),
+        "convergence": plots.plot_convergence(runs, fits, path / f"{case}_convergence.png")
+        if converges
+        else None,
         "work_precision": plots.plot_work_precision(runs, path / f"{case}_work_precision.png"),
         "stability": plots.plot_stability(runs, path / f"{case}_stability.png"),
     }
@@ -208,7 +211,10 @@ def write_figures(
 def _image(figures: dict, case: str, kind: str, out: Path, alt: str) -> str:
     path = figures.get((case, kind))
     if path is None:
-        return f"*No {alt} figure: no valid run has the data it needs.*"
+        return (
+            f"*No {alt} figure: nothing to show (a convergence plot needs {MIN_FIT_POINTS} or "
+            "more dt swept; the other figures need a valid run).*"
+        )
     return f"![{alt}, {case}]({path.relative_to(out).as_posix()})"
 
 
