@@ -5,7 +5,6 @@ formulas written here, conservation laws, frame covariance, a numerical integrat
 (DOP853) and, when mpmath is installed, a 30-digit Taylor-series integration.
 """
 
-import time
 
 import numpy as np
 import pytest
@@ -35,8 +34,6 @@ DOP853_TOL = 1e-11
 HIGH_PRECISION_TOL = 1e-13
 # The flip: the body y axis's world y component starts above this and later falls below minus it.
 FLIP_LEVEL = 0.99
-# The brief's budget for the 10 s tumbling_box at 101 samples (measured: a few ms).
-RUN_TIME_BUDGET_S = 1.0
 
 SAMPLES = np.linspace(0.0, 10.0, 101)
 FIXED_ROTATION = Rotation.from_rotvec([0.3, -0.7, 0.5])
@@ -270,11 +267,3 @@ def test_agrees_with_high_precision_integration():
     diff = np.abs(state["q"] - q_ref).max()
     print(f"exact vs 30-digit integration: {diff:.1e}")
     assert diff <= HIGH_PRECISION_TOL, f"exact vs 30-digit integration: {diff:.2e}"
-
-
-def test_fast_enough():
-    exact_states(CATALOG["tumbling_box"], SAMPLES)  # warm the numba caches
-    start = time.perf_counter()
-    exact_states(CATALOG["tumbling_box"], SAMPLES)
-    elapsed = time.perf_counter() - start
-    assert elapsed < RUN_TIME_BUDGET_S, f"tumbling_box exact states took {elapsed:.3f} s"
