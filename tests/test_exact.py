@@ -5,7 +5,6 @@ formulas written here, conservation laws, frame covariance, a numerical integrat
 (DOP853) and, when mpmath is installed, a 30-digit Taylor-series integration.
 """
 
-
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
