@@ -1,24 +1,70 @@
 """Unit quaternions, scalar first (w, x, y, z), and rotation helpers.
 
-Single-quaternion functions are numba-compiled (used inside the step loops); the batch
-functions (plural names) loop over (n, 4) arrays with the same kernels.
+The step loops use the tuple kernels (`qmul`, `qnormalize`, `qexp`, `qmatrix`: no heap arrays);
+the single-quaternion array functions wrap them, and the batch functions (plural names) loop over
+(n, 4) arrays with the same kernels.
 """
+
+import math
 
 import numpy as np
 from numba import njit
+
+from reference_sim.jit import kernel
+
+
+@kernel
+def qmul(p, q):
+    """Hamilton product p q of 4-tuples (or rows): the rotation q followed by p."""
+    return (
+        p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3],
+        p[0] * q[1] + p[1] * q[0] + p[2] * q[3] - p[3] * q[2],
+        p[0] * q[2] - p[1] * q[3] + p[2] * q[0] + p[3] * q[1],
+        p[0] * q[3] + p[1] * q[2] - p[2] * q[1] + p[3] * q[0],
+    )
+
+
+@kernel
+def qnormalize(q):
+    """q / |q| as a 4-tuple."""
+    s = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return (s * q[0], s * q[1], s * q[2], s * q[3])
+
+
+@kernel
+def qexp(v):
+    """Exponential map as a 4-tuple: the rotation by angle |v| about v / |v|."""
+    angle = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    half = 0.5 * angle
+    # sin(half)/angle, with its Taylor series where the division would lose precision
+    if angle < 1e-4:
+        s = 0.5 - angle * angle / 48.0
+    else:
+        s = math.sin(half) / angle
+    return (math.cos(half), s * v[0], s * v[1], s * v[2])
+
+
+@kernel
+def qmatrix(q):
+    """Rotation matrix of the unit quaternion q as a row-major 9-tuple."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    return (
+        1 - 2 * (y * y + z * z),
+        2 * (x * y - w * z),
+        2 * (x * z + w * y),
+        2 * (x * y + w * z),
+        1 - 2 * (x * x + z * z),
+        2 * (y * z - w * x),
+        2 * (x * z - w * y),
+        2 * (y * z + w * x),
+        1 - 2 * (x * x + y * y),
+    )
 
 
 @njit(cache=True)
 def quat_multiply(p, q):
     """Hamilton product p q: the rotation q followed by p."""
-    return np.array(
-        [
-            p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3],
-            p[0] * q[1] + p[1] * q[0] + p[2] * q[3] - p[3] * q[2],
-            p[0] * q[2] - p[1] * q[3] + p[2] * q[0] + p[3] * q[1],
-            p[0] * q[3] + p[1] * q[2] - p[2] * q[1] + p[3] * q[0],
-        ]
-    )
+    return np.array(qmul(p, q))
 
 
 @njit(cache=True)
@@ -28,33 +74,19 @@ def quat_conjugate(q):
 
 @njit(cache=True)
 def quat_normalize(q):
-    return q / np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return np.array(qnormalize(q))
 
 
 @njit(cache=True)
 def quat_from_rotvec(v):
     """Exponential map: the rotation by angle |v| about v / |v|."""
-    angle = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-    half = 0.5 * angle
-    # sin(half)/angle, with its Taylor series where the division would lose precision
-    if angle < 1e-4:
-        s = 0.5 - angle * angle / 48.0
-    else:
-        s = np.sin(half) / angle
-    return np.array([np.cos(half), s * v[0], s * v[1], s * v[2]])
+    return np.array(qexp(v))
 
 
 @njit(cache=True)
 def quat_to_matrix(q):
     """(3, 3) rotation matrix of the unit quaternion q."""
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+    return np.array(qmatrix(q)).reshape(3, 3)
 
 
 @njit(cache=True)

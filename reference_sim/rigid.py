@@ -15,11 +15,25 @@ as impulses before and after the drift (`reference_sim.contact`).
   normalised after the step.
 """
 
-import numpy as np
-from numba import njit
+import math
 
-from reference_sim.contact import find_candidates, post_solve, pre_solve, remember, world_omega
-from reference_sim.quaternion import quat_from_rotvec, quat_multiply, quat_normalize, quat_to_matrix
+import numpy as np
+
+from reference_sim.contact import (
+    GRID_MIN_BODIES,
+    after_drift,
+    before_drift,
+    body_pairs,
+    contact_buffers,
+    find_candidates_into,
+    frames_into,
+    grown,
+    reach_into,
+    world_omega,
+)
+from reference_sim.jit import compiled, kernel
+from reference_sim.quaternion import qexp, qmatrix, qmul, qnormalize
+from reference_sim.vec3 import mat, mat_t_vec, mat_vec, row
 
 INTEGRATORS = {"euler": 0, "splitting": 1, "rk4": 2}
 EULER, SPLITTING, RK4 = 0, 1, 2
@@ -28,104 +42,195 @@ EULER, SPLITTING, RK4 = 0, 1, 2
 BOUNCE_STEPS = 2.0
 
 
-@njit(cache=True)
+@kernel
+def _principal_rotation(model, q, lp, b, k, angle):
+    """The flow about principal axis k for `angle` (rad): q <- q exp(angle a_k) and the body's
+    angular momentum in principal components lp rotated back by -angle about axis k."""
+    half = 0.5 * angle
+    s, c = math.sin(half), math.cos(half)
+    a = model.principal_axes
+    q = qmul(q, (c, s * a[b, k, 0], s * a[b, k, 1], s * a[b, k, 2]))
+    cos_t, sin_t = c * c - s * s, 2.0 * s * c
+    if k == 0:
+        lp = (lp[0], cos_t * lp[1] + sin_t * lp[2], cos_t * lp[2] - sin_t * lp[1])
+    elif k == 1:
+        lp = (cos_t * lp[0] - sin_t * lp[2], lp[1], cos_t * lp[2] + sin_t * lp[0])
+    else:
+        lp = (cos_t * lp[0] + sin_t * lp[1], cos_t * lp[1] - sin_t * lp[0], lp[2])
+    return q, lp
+
+
+@kernel
 def _free_rotation_split(model, q, L, b, dt):
-    """Exact flows about the principal axes composed as R1(h/2) R2(h/2) R3(h) R2(h/2) R1(h/2)."""
+    """Exact flows about the principal axes composed as R1(h/2) R2(h/2) R3(h) R2(h/2) R1(h/2).
+
+    The body's angular momentum is carried along in principal components (each flow rotates it
+    about one coordinate axis), so the matrix of q is formed once per step.
+    """
+    # principal components: the rows of principal_axes[b] are the axes
+    lp = mat_vec(mat(model.principal_axes, b), mat_t_vec(qmatrix(q), L))
+    moments = row(model.principal_moments, b)
     for k, frac in ((0, 0.5), (1, 0.5), (2, 1.0), (1, 0.5), (0, 0.5)):
-        axis = model.principal_axes[b, k]
-        body_l = quat_to_matrix(q).T @ L
-        angle = np.dot(axis, body_l) / model.principal_moments[b, k] * frac * dt
-        # a rotation about a body-frame axis multiplies on the right
-        q = quat_normalize(quat_multiply(q, quat_from_rotvec(angle * axis)))
-    return q
+        q, lp = _principal_rotation(model, q, lp, b, k, lp[k] / moments[k] * frac * dt)
+    return qnormalize(q)
 
 
-@njit(cache=True)
+@kernel
 def _quat_rate(model, q, L, b):
-    w = world_omega(model, quat_normalize(q), L, b)
-    return 0.5 * quat_multiply(np.array([0.0, w[0], w[1], w[2]]), q)
+    w = world_omega(model, qnormalize(q), L, b)
+    r = qmul((0.0, w[0], w[1], w[2]), q)
+    return (0.5 * r[0], 0.5 * r[1], 0.5 * r[2], 0.5 * r[3])
 
 
-@njit(cache=True)
-def _rk4_body(model, x, q, v, L, b, dt):
-    g = model.gravity
-    # dx/dt = v, dv/dt = g are integrated exactly by RK4 (polynomial); only q needs stages.
+@kernel
+def _axpy(q, h, k):
+    """q + h k for 4-tuples."""
+    return (q[0] + h * k[0], q[1] + h * k[1], q[2] + h * k[2], q[3] + h * k[3])
+
+
+@kernel
+def _rk4_rotation(model, q, L, b, dt):
+    """Classic RK4 on dq/dt = (0, omega) q / 2, normalised after the step. (dx/dt = v and
+    dv/dt = g are integrated exactly by RK4, polynomials: the caller does them directly.)"""
     k1 = _quat_rate(model, q, L, b)
-    k2 = _quat_rate(model, q + 0.5 * dt * k1, L, b)
-    k3 = _quat_rate(model, q + 0.5 * dt * k2, L, b)
-    k4 = _quat_rate(model, q + dt * k3, L, b)
-    x_new = x + dt * v + 0.5 * dt * dt * g
-    v_new = v + dt * g
-    q_new = quat_normalize(q + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4))
-    return x_new, q_new, v_new
+    k2 = _quat_rate(model, _axpy(q, 0.5 * dt, k1), L, b)
+    k3 = _quat_rate(model, _axpy(q, 0.5 * dt, k2), L, b)
+    k4 = _quat_rate(model, _axpy(q, dt, k3), L, b)
+    total = _axpy(_axpy(_axpy(k1, 2.0, k2), 2.0, k3), 1.0, k4)
+    return qnormalize(_axpy(q, dt / 6.0, total))
 
 
-@njit(cache=True)
-def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, memory):
+@kernel
+def _store_quat(out, b, q):
+    out[b, 0], out[b, 1], out[b, 2], out[b, 3] = q
+
+
+@kernel
+def _drift(model, integrator, x, q, v, L, dt):
+    """The integrator's contact-free update of every body, in place."""
+    g = model.gravity
+    for b in range(x.shape[0]):
+        qb, lb = (q[b, 0], q[b, 1], q[b, 2], q[b, 3]), row(L, b)
+        if integrator == EULER:
+            for i in range(3):
+                x[b, i] += dt * v[b, i]
+            w = world_omega(model, qb, lb, b)
+            _store_quat(q, b, qnormalize(qmul(qexp((dt * w[0], dt * w[1], dt * w[2])), qb)))
+            continue
+        for i in range(3):
+            # kick-drift-kick: constant gravity exact (RK4's polynomial stages agree)
+            v[b, i] += 0.5 * dt * g[i]
+            x[b, i] += dt * v[b, i]
+            v[b, i] += 0.5 * dt * g[i]
+        if integrator == SPLITTING:
+            _store_quat(q, b, _free_rotation_split(model, qb, lb, b, dt))
+        else:
+            _store_quat(q, b, _rk4_rotation(model, qb, lb, b, dt))
+
+
+@kernel
+def _kick(model, integrator, v, dt):
+    """Euler's velocity update before the contacts and the drift (the others kick in it)."""
+    if integrator == EULER and model.gravity_on:
+        for b in range(v.shape[0]):
+            for i in range(3):
+                v[b, i] += dt * model.gravity[i]
+
+
+@kernel
+def _free_step(model, integrator, x, q, v, L, dt):
+    """A step without contact."""
+    _kick(model, integrator, v, dt)
+    _drift(model, integrator, x, q, v, L, dt)
+
+
+@kernel
+def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, n_pairs, buf):
     """Advance every body by dt in place; contact impulses before and after the drift.
 
-    `memory` holds last step's contact impulses (keys and values, before and after the drift)
-    for the warm start; the updated memory is returned.
+    `buf` (`ContactBuffers`) holds the contacts' work space and last step's impulses for the
+    warm start. n_pairs < 0: body pairs are tested here pair by pair; else `buf.pairs` holds
+    them. Returns 0, or (if `buf` is too small, before changing anything) the candidates'
+    count it needs, or minus the body pairs' count.
     """
-    half = 0.5 * dt * model.gravity
+    if not model.contact:
+        _free_step(model, integrator, x, q, v, L, dt)
+        return 0
+    frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
+    kick = (0.0, 0.0, 0.0)
     if integrator == EULER and model.gravity_on:
-        for b in range(x.shape[0]):
-            v[b] += dt * model.gravity
-    cands = np.empty((0, 4), dtype=np.int64)
-    if model.contact:
-        cands = find_candidates(model, x, q, v, L, dt)
-    lam, bounce = np.zeros((0, 3)), np.zeros(0)
-    pre_keys, pre_lam = memory[0], memory[1]
-    if cands.shape[0]:
-        # the drift moves euler's bodies with v, the others' with v + g dt / 2
-        drift_gravity = np.zeros(3) if integrator == EULER else half
-        _, lam, pushed, bounce = pre_solve(
-            model, x, q, v, L, cands, dt, drift_gravity, bounce_threshold, memory[0], memory[1]
+        kick = (dt * model.gravity[0], dt * model.gravity[1], dt * model.gravity[2])
+    nc = find_candidates_into(model, x, v, dt, kick, n_pairs, buf)
+    if nc < 0 or nc > buf.cands.shape[0]:
+        return nc
+    _kick(model, integrator, v, dt)
+    if nc == 0:
+        _drift(model, integrator, x, q, v, L, dt)
+        return 0
+    # the drift moves euler's bodies with v, the others' with v + g dt / 2
+    drift_gravity = (0.0, 0.0, 0.0)
+    if integrator != EULER:
+        drift_gravity = (
+            0.5 * dt * model.gravity[0],
+            0.5 * dt * model.gravity[1],
+            0.5 * dt * model.gravity[2],
         )
-        pre_keys, pre_lam = remember(model, cands, lam, pushed & (lam[:, 0] > 0.0))
+    before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf)
+    _drift(model, integrator, x, q, v, L, dt)
+    after_drift(model, x, q, v, L, nc, dt, buf)
+    return 0
+
+
+@kernel
+def _steps(
+    model, integrator, x, q, v, L, dt, bounce_threshold, buf, n, n_steps, stride, out, steps, s
+):
+    """Steps n..n_steps, pairs tested pair by pair, recording samples from slot s; returns
+    (next step, next slot, 0), or stops before a step `buf` is too small for, returning what it
+    needs (`rigid_step`)."""
+    while n <= n_steps:
+        needed = rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, -1, buf)
+        if needed != 0:
+            return n, s, needed
+        if n % stride == 0 or n == n_steps:
+            _record(model, x, q, v, L, out, s)
+            steps[s] = n
+            s += 1
+        n += 1
+    return n, s, 0
+
+
+@compiled
+def _grid_pairs(model, integrator, x, q, v, L, dt, buf):
+    """Body pairs of the coming step, found on the grid (`body_pairs`), copied into `buf`
+    (grown if needed); returns the buffers and the pairs' count."""
+    frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
+    kick = np.zeros(3)
+    if integrator == EULER and model.gravity_on:
+        kick = dt * model.gravity
+    reach = np.empty(x.shape[0])
+    reach_into(model, v, buf.omega, dt, (kick[0], kick[1], kick[2]), reach)
+    pairs = body_pairs(model, x, reach, True)
+    if pairs.shape[0] > buf.pairs.shape[0]:
+        buf = grown(buf, buf.cands.shape[0], 2 * pairs.shape[0])
+    buf.pairs[: pairs.shape[0]] = pairs
+    return buf, pairs.shape[0]
+
+
+@kernel
+def _record(model, x, q, v, L, samples, s):
+    """Sample s: x, q, v and world omega of every body."""
+    out = samples[s]
     for b in range(x.shape[0]):
-        if integrator == EULER:
-            x[b] += dt * v[b]
-            w = world_omega(model, q[b], L[b], b)
-            q[b] = quat_normalize(quat_multiply(quat_from_rotvec(dt * w), q[b]))
-        elif integrator == SPLITTING:
-            if model.gravity_on:
-                v[b] += half
-            x[b] += dt * v[b]
-            q[b] = _free_rotation_split(model, q[b], L[b], b, dt)
-            if model.gravity_on:
-                v[b] += half
-        else:
-            x[b], q[b], v[b] = _rk4_body(model, x[b], q[b], v[b], L[b], b, dt)
-    if cands.shape[0] == 0:
-        return memory
-    _, lam, active = post_solve(
-        model,
-        x,
-        q,
-        v,
-        L,
-        cands,
-        dt,
-        bounce,
-        (lam[:, 0] > 0.0) | (bounce > 0.0),
-        memory[2],
-        memory[3],
-    )
-    post_keys, post_lam = remember(model, cands, lam, active)
-    return pre_keys, pre_lam, post_keys, post_lam
+        qb = (q[b, 0], q[b, 1], q[b, 2], q[b, 3])
+        for i in range(3):
+            out[b, i], out[b, 7 + i] = x[b, i], v[b, i]
+        for i in range(4):
+            out[b, 3 + i] = qb[i]
+        out[b, 10], out[b, 11], out[b, 12] = world_omega(model, qb, row(L, b), b)
 
 
-@njit(cache=True)
-def _record(model, x, q, v, L, out):
-    for b in range(x.shape[0]):
-        out[b, 0:3] = x[b]
-        out[b, 3:7] = q[b]
-        out[b, 7:10] = v[b]
-        out[b, 10:13] = world_omega(model, q[b], L[b], b)
-
-
-@njit(cache=True)
+@compiled
 def run_rigid(model, integrator, x, q, v, L, dt, n_steps, stride):
     """Step n_steps times in place; return samples (S, B, 13): x, q, v, omega per body.
 
@@ -135,15 +240,59 @@ def run_rigid(model, integrator, x, q, v, L, dt, n_steps, stride):
     out = np.empty((n_samples, x.shape[0], 13))
     steps = np.empty(n_samples, dtype=np.int64)
     bounce_threshold = BOUNCE_STEPS * np.sqrt(np.dot(model.gravity, model.gravity)) * dt
-    none = np.empty(0, dtype=np.int64)
-    memory = (none, np.empty((0, 3)), none, np.empty((0, 3)))
-    _record(model, x, q, v, L, out[0])
+    if not model.contact:
+        _free_steps(model, integrator, x, q, v, L, dt, n_steps, stride, out, steps)
+        return steps, out
+    nb = x.shape[0]
+    buf = contact_buffers(nb, 8 * nb + 16, 4 * nb + 16)
+    _record(model, x, q, v, L, out, 0)
+    steps[0] = 0
+    n, s = 1, 1
+    while n <= n_steps:
+        if nb < GRID_MIN_BODIES:
+            n, s, needed = _steps(
+                model,
+                integrator,
+                x,
+                q,
+                v,
+                L,
+                dt,
+                bounce_threshold,
+                buf,
+                n,
+                n_steps,
+                stride,
+                out,
+                steps,
+                s,
+            )
+        else:
+            buf, n_pairs = _grid_pairs(model, integrator, x, q, v, L, dt, buf)
+            needed = rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, n_pairs, buf)
+            if needed == 0:
+                if n % stride == 0 or n == n_steps:
+                    _record(model, x, q, v, L, out, s)
+                    steps[s] = n
+                    s += 1
+                n += 1
+        if needed < 0:
+            buf = grown(buf, buf.cands.shape[0], -2 * needed)
+        elif needed > 0:
+            buf = grown(buf, 2 * needed, buf.pairs.shape[0])
+    return steps, out
+
+
+@kernel
+def _free_steps(model, integrator, x, q, v, L, dt, n_steps, stride, out, steps):
+    """`run_rigid` without contact: every step is `rigid_step`'s drift (and euler's kick)
+    alone, in one kernel, so a step makes no counted call."""
+    _record(model, x, q, v, L, out, 0)
     steps[0] = 0
     s = 1
     for n in range(1, n_steps + 1):
-        memory = rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, memory)
+        _free_step(model, integrator, x, q, v, L, dt)
         if n % stride == 0 or n == n_steps:
-            _record(model, x, q, v, L, out[s])
+            _record(model, x, q, v, L, out, s)
             steps[s] = n
             s += 1
-    return steps, out

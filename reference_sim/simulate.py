@@ -5,7 +5,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from reference_sim.contact import find_candidates, pre_solve
+from reference_sim.contact import (
+    after_drift,
+    before_drift,
+    contact_buffers,
+    find_candidates,
+    find_candidates_into,
+    frames_into,
+    grown,
+)
 from reference_sim.model import (
     Model,
     RigidState,
@@ -88,9 +96,12 @@ def compile_stage(stage: str) -> None:
     dt = 0.01
     if stage == "contact":
         x, q, v, L = (a.copy() for a in state)
-        cands = find_candidates(model, x, q, v, L, dt)
-        none = np.empty(0, dtype=np.int64)
-        pre_solve(model, x, q, v, L, cands, dt, np.zeros(3), 0.2, none, np.empty((0, 3)))
+        find_candidates(model, x, q, v, L, dt)
+        buf = grown(contact_buffers(1, 8, 4), 16, 4)
+        frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
+        nc = find_candidates_into(model, x, v, dt, (0.0, 0.0, 0.0), -1, buf)
+        before_drift(model, x, v, L, nc, dt, (0.0, 0.0, -0.05), 0.2, buf)
+        after_drift(model, x, q, v, L, nc, dt, buf)
     elif stage == "seed":
         simulate(model, seed_initial_state(model, corners[:, :3], velocity, omega), "seed", dt, 2)
     elif stage == "rigid":

@@ -1,0 +1,14 @@
+"""How the simulator is compiled: two numba decorators.
+
+`compiled` functions may allocate arrays. `kernel` functions allocate nothing and are compiled
+without numba's reference counting: in a counted function every call that passes arrays (the
+`Model` alone holds 14) increments and decrements each array's count, an atomic operation,
+which in the step loops cost several times the arithmetic (500 ns of a 600 ns free-flight
+step, measured). Step loops and their helpers are kernels; only the functions that allocate
+(contact lists, the sample table) are counted, and they are called at most a few times a step.
+"""
+
+from numba import njit
+
+compiled = njit(cache=True)
+kernel = njit(cache=True, _nrt=False)

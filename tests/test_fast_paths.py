@@ -1,0 +1,204 @@
+"""The simulator's fast paths give the results of the straightforward ones.
+
+- Free flight: the compiled step loop (tuple arithmetic, principal-frame splitting) against a
+  plain numpy transliteration of each integrator's formulas (`straightforward_step` below).
+- Broadphase: body pairs found on the uniform grid are exactly those found pair by pair, and a
+  crowded scene stepped with either is bit-equal.
+"""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from cases import CATALOG, Body, Contact, Scene
+from cases.builders import box_corners, box_walls
+from comparators.reference import model_from_scene
+from reference_sim.contact import (
+    GRID_MIN_BODIES,
+    body_frames,
+    body_pairs,
+    contact_buffers,
+    frames_into,
+    reach_into,
+)
+from reference_sim.model import rigid_initial_state
+from reference_sim.rigid import BOUNCE_STEPS, INTEGRATORS, rigid_step, run_rigid
+
+# Free flight: one step of either path from the same state. They differ in the order of their
+# floating-point operations only (a few ulps of unit-scale numbers, ~1e-15), while any formula
+# difference would show the integrators' truncation error (>= dt^3 ~ 1e-6). Compared step by
+# step, not over a run: near tumbling_box's separatrix rounding differences grow by orders of
+# magnitude within 1000 steps, which is the motion's conditioning, not the paths' difference.
+FREE_FLIGHT_TOLERANCE = 1e-12
+FREE_STEPS = 300
+
+
+def _quat_mul(p, q):
+    w1, v1, w2, v2 = p[0], p[1:], q[0], q[1:]
+    return np.concatenate([[w1 * w2 - v1 @ v2], w1 * v2 + w2 * v1 + np.cross(v1, v2)])
+
+
+def _rotation(q):
+    return Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix()
+
+
+def _exp(v):
+    angle = np.linalg.norm(v)
+    if angle == 0:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * v / angle])
+
+
+def straightforward_step(model, integrator, x, q, v, L, dt):
+    """One contact-free step of one body, as each integrator's docstring states it."""
+    inv0 = model.inertia0_inv[0]
+
+    def omega(qq):
+        r = _rotation(qq / np.linalg.norm(qq))
+        return r @ inv0 @ r.T @ L
+
+    g = model.gravity
+    if integrator == "euler":
+        v = v + g * dt
+        q = _quat_mul(_exp(omega(q) * dt), q)
+        return x + v * dt, q / np.linalg.norm(q), v
+    x = x + v * dt + 0.5 * g * dt * dt
+    v = v + g * dt
+    if integrator == "splitting":
+        for k, frac in ((0, 0.5), (1, 0.5), (2, 1.0), (1, 0.5), (0, 0.5)):
+            axis = model.principal_axes[0, k]
+            body_l = _rotation(q).T @ L
+            angle = axis @ body_l / model.principal_moments[0, k] * frac * dt
+            q = _quat_mul(q, _exp(angle * axis))
+        return x, q / np.linalg.norm(q), v
+
+    def rate(qq):
+        return 0.5 * _quat_mul(np.concatenate([[0.0], omega(qq)]), qq)
+
+    k1 = rate(q)
+    k2 = rate(q + 0.5 * dt * k1)
+    k3 = rate(q + 0.5 * dt * k2)
+    k4 = rate(q + dt * k3)
+    q = q + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return x, q / np.linalg.norm(q), v
+
+
+def _state(scene):
+    model = model_from_scene(scene)
+    state = rigid_initial_state(
+        model,
+        [b.com for b in scene.bodies],
+        [b.velocity for b in scene.bodies],
+        [b.angular_velocity for b in scene.bodies],
+    )
+    return model, state
+
+
+@pytest.mark.parametrize("integrator", ["euler", "splitting", "rk4"])
+@pytest.mark.parametrize("case", ["tumbling_box", "thin_rod"])
+def test_free_flight_loop_matches_the_straightforward_step(case, integrator):
+    scene = CATALOG[case]
+    model, state = _state(scene)
+    x, q, v = state.x[0].copy(), state.q[0].copy(), state.v[0].copy()
+    L = state.L[0].copy()
+    code = INTEGRATORS[integrator]
+    worst = 0.0
+    for _ in range(FREE_STEPS):
+        start = (x[None], q[None], v[None], L[None])
+        _, samples = run_rigid(model, code, *(a.copy() for a in start), scene.dt, 1, 1)
+        x, q, v = straightforward_step(model, integrator, x, q, v, L, scene.dt)
+        worst = max(worst, np.max(np.abs(samples[-1, 0, 0:10] - np.concatenate([x, q, v]))))
+    assert worst < FREE_FLIGHT_TOLERANCE
+
+
+def crowd(n_side: int = 4, seed: int = 7) -> Scene:
+    """n_side^3 small boxes, jittered and spinning, falling into a closed box: many close pairs."""
+    rng = np.random.default_rng(seed)
+    spacing = 0.45
+    bodies = []
+    for k, (i, j, m) in enumerate(np.ndindex(n_side, n_side, n_side)):
+        center = np.array([i, j, m]) * spacing + 0.4 + rng.uniform(-0.05, 0.05, 3)
+        bodies.append(
+            Body(
+                name=f"box{k}",
+                particle_radius=0.05,
+                particles=box_corners((0.3, 0.3, 0.3), center=tuple(center)),
+                velocity=tuple(rng.normal(0.0, 0.5, 3)),
+                angular_velocity=tuple(rng.normal(0.0, 2.0, 3)),
+            )
+        )
+    upper = n_side * spacing + 0.4
+    return Scene(
+        name="crowd",
+        duration=0.5,
+        dt=0.005,
+        gravity=(0.0, 0.0, -10.0),
+        contact=Contact(restitution=0.3, friction=0.5),
+        planes=box_walls(upper=(upper, upper, upper + 1.0)),
+        bodies=tuple(bodies),
+    )
+
+
+def _reach(model, state, dt):
+    rot, inv, omega = body_frames(model, state.q, state.L)
+    reach = np.empty(len(model.body_mass))
+    reach_into(model, state.v, omega, dt, (0.0, 0.0, 0.0), reach)
+    return reach
+
+
+def test_grid_finds_the_same_body_pairs():
+    scene = crowd()
+    model, state = _state(scene)
+    for dt in (0.005, 0.05, 0.5):  # from few pairs to nearly all of them
+        reach = _reach(model, state, dt)
+        grid = body_pairs(model, state.x, reach, True)
+        every = body_pairs(model, state.x, reach, False)
+        assert len(every) > 0
+        np.testing.assert_array_equal(grid, every)
+
+
+def test_grid_falls_back_on_far_flung_and_nan_bodies():
+    model, state = _state(crowd())
+    reach = _reach(model, state, 0.005)
+    far = state.x.copy()
+    far[0] = (1e9, 0.0, 0.0)
+    np.testing.assert_array_equal(
+        body_pairs(model, far, reach, True), body_pairs(model, far, reach, False)
+    )
+    broken = state.x.copy()
+    broken[3] = np.nan
+    np.testing.assert_array_equal(
+        body_pairs(model, broken, reach, True), body_pairs(model, broken, reach, False)
+    )
+
+
+@pytest.mark.parametrize("integrator", ["euler", "splitting"])
+def test_grid_and_pairwise_steps_are_bit_equal(integrator):
+    scene = crowd()
+    model, state = _state(scene)
+    nb = len(model.body_mass)
+    assert nb >= GRID_MIN_BODIES
+    threshold = BOUNCE_STEPS * 10.0 * scene.dt
+    code = INTEGRATORS[integrator]
+    results = []
+    for use_grid in (True, False):
+        x, q, v, L = (a.copy() for a in state)
+        buf = contact_buffers(nb, 64 * nb, nb * nb)
+        touched = 0
+        for _ in range(100):
+            n_pairs = -1
+            if use_grid:
+                frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
+                kick = tuple(scene.dt * model.gravity) if integrator == "euler" else (0.0,) * 3
+                reach = np.empty(nb)
+                reach_into(model, v, buf.omega, scene.dt, kick, reach)
+                pairs = body_pairs(model, x, reach, True)
+                buf.pairs[: len(pairs)] = pairs
+                n_pairs = len(pairs)
+                touched += n_pairs
+            assert rigid_step(model, code, x, q, v, L, scene.dt, threshold, n_pairs, buf) == 0
+        results.append((x, q, v, L))
+        if use_grid:
+            assert touched > 0  # bodies did come close
+    for fast, plain in zip(*results, strict=True):
+        np.testing.assert_array_equal(fast, plain)
