@@ -495,9 +495,10 @@ def exact_rotation(q, L, moments, axes, dt):
     f3 = 1.0 if p3 >= 0.0 else -1.0
     f2 = f1 * f3
     p1, p2, p3 = f1 * p1, f2 * p2, f3 * p3
-    if p1 == 0.0 and (p2 == 0.0 or p3 == 0.0):
+    # Squares, not components: the elliptic path divides by a1 ~ sqrt(p1^2 + p2^2).
+    if p1 * p1 + p2 * p2 == 0.0 or p1 * p1 + p3 * p3 == 0.0:
         # Along axis 3, or at the saddle (axis 2): a steady spin omega = I^-1 pi in the body.
-        if p2 == 0.0:
+        if p1 * p1 + p2 * p2 == 0.0:
             w = p3 / i3 * dt
             e = _qexp(w * f3 * e3x, w * f3 * e3y, w * f3 * e3z)
         else:
