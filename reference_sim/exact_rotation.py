@@ -68,14 +68,14 @@ CARLSON_RTOL = 2.0**-53
 # (r/4)^(1/6) for R_J, r the relative truncation bound.
 _RF_SCALE = (3.0 * CARLSON_RTOL) ** (-1.0 / 6.0)
 _RJ_SCALE = (0.25 * CARLSON_RTOL) ** (-1.0 / 6.0)
-# Duplications never needed here: each divides the spread of the arguments by 4, and 1e-308 to
-# 1 in 4^-n takes 512; a safety bound against non-finite input, not a convergence criterion.
+# Never reached: each duplication divides the spread of the arguments by 4, and 4^-n spans
+# 1e-308 in 512 of them; a guard against non-finite input, not a convergence criterion.
 MAX_DUPLICATIONS = 600
 # The arithmetic-geometric mean has converged when c_n / a_n is below the double's epsilon: a
 # further level would change am by less than a rounding of its result.
 AGM_TOL = 2.0**-52
-# Levels needed from b0 = sqrt(m1) >= 1e-162 (the smallest m1 a double holds): about 14 (the
-# ratio b/a reaches O(1) in log2(373) ~ 9 levels, then converges quadratically). A bound only.
+# Levels needed: 5 at m = 1/2, 10 at m1 = 1e-30, 13 at the smallest m1 a double holds (b/a
+# reaches O(1) in log2(ln(1/b0)) levels, then converges quadratically). A bound only.
 MAX_AGM_LEVELS = 40
 # Below this m1 = 1 - m, dn is summed from its series of sech terms (below) instead of being
 # formed from cos(am): am is accurate to a rounding in absolute terms only, so cos(am) ~ m1^(1/4)
@@ -83,9 +83,10 @@ MAX_AGM_LEVELS = 40
 # unbounded as m1 -> 0 (the body near the saddle of the intermediate axis).
 M1_SERIES_MAX = 1e-2
 # The sech series has converged when a pair of terms adds less than this, relative: the unit
-# roundoff. At m1 = 1e-2 that takes 6 pairs (the nome exp(-pi K'/K) is below 6e-4).
+# roundoff. Pair n is ~ 2 q1^(n - 1/4) for |x| <= K/2, q1 = exp(-pi K / K') the complementary
+# nome (6.3e-4 at m1 = 1e-2, ~ m1 / 16 below): 6 pairs at m1 = 1e-2, 3 at 1e-6.
 SERIES_RTOL = 2.0**-53
-# A bound only: the terms fall like the complementary nome q1^n <= 6e-4^n (m1 < 1e-2).
+# A bound only (see above).
 MAX_SERIES_TERMS = 64
 # R_C(1, 1 + e) by its series in e below this |e|: the first term left out, e^6 / 13, is below
 # 1e-19 there (2^-10 ~ 1e-3), and the duplication's later terms all fall in this range.
@@ -198,8 +199,9 @@ def _jacobi_am(u, m, m1, levels, a_last):
     """Jacobi amplitude am(u | m) by the descending AGM (A&S 16.4.3), from m and m1 = 1 - m.
 
     The backward recurrence needs c_n / a_n in reverse order; they are recomputed from the
-    start for each level instead of stored, which keeps this free of allocation (levels <= ~8
-    for m1 > 1e-30, so the quadratic cost is a few dozen square roots).
+    start for each level instead of stored, which keeps this free of allocation (numba's
+    cached recursion was not an option: it crashed on reload). With 5 to 10 levels the
+    quadratic cost is 15 to 55 AGM steps, one square root each.
     """
     amp = math.ldexp(a_last * u, levels)
     for level in range(levels, 0, -1):
@@ -233,8 +235,9 @@ def _jacobi_sncndn(j, offset, m, m1, quarter, quarter_c, levels, a_last):
 
     Beyond K/2 they come from u = K - |r| (sn = cd u, cn = sqrt(m1) sd u, dn = sqrt(m1) nd u),
     formed as (1 -+ j) K -+ offset so that j = +-1 cancels exactly, and cn near its zero at K is
-    not the cosine of an amplitude close to pi/2. For small m1, dn is summed from its sech series
-    and cn = sqrt(dn^2 - m1 sn^2) (dn^2 >= sqrt(m1) >> m1 sn^2 for |x| <= K/2: no cancellation).
+    not the cosine of an amplitude close to pi/2. For small m1, dn(x) is summed from its sech
+    series and cn(x) = sqrt(dn^2 - m1 sn^2) (dn^2 >= sqrt(m1) >> m1 sn^2 for |x| <= K/2: no
+    cancellation), so that cd x, sd x and nd x are all relatively accurate too.
     quarter = K, quarter_c = K' (read only when m1 < M1_SERIES_MAX).
     """
     r = j * quarter + offset
@@ -247,8 +250,7 @@ def _jacobi_sncndn(j, offset, m, m1, quarter, quarter_c, levels, a_last):
     sx, cx = math.sin(amp), math.cos(amp)
     if m1 < M1_SERIES_MAX:
         dx = _dn_series(x, quarter, quarter_c)
-        if not far:
-            cx = math.sqrt(max(dx * dx - m1 * sx * sx, 0.0))
+        cx = math.sqrt(max(dx * dx - m1 * sx * sx, 0.0))
     else:
         dx = math.sqrt(cx * cx + m1 * sx * sx)
     if far:

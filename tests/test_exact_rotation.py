@@ -18,7 +18,6 @@ from scipy.spatial.transform import Rotation
 from cases import builders
 from cases.catalog import CATALOG
 from cases.exact import torque_free_rotation
-from comparators.reference import model_from_scene
 from reference_sim.exact_rotation import EQUAL_MOMENTS_RTOL, exact_rotation
 from reference_sim.model import build_model, rigid_initial_state
 from reference_sim.quaternion import (
@@ -88,8 +87,11 @@ def _from_model(model, omega) -> Free:
 
 
 def _catalog_body(name: str) -> Free:
-    scene = CATALOG[name]
-    return _from_model(model_from_scene(scene), scene.bodies[0].angular_velocity)
+    """The scene's body as the simulator models it (what comparators.reference builds for a
+    contact-free scene, without importing the engines)."""
+    body = CATALOG[name].bodies[0]
+    model = build_model([(body.particles, body.particle_radius)], (0.0, 0.0, 0.0))
+    return _from_model(model, body.angular_velocity)
 
 
 def _particle_body(rows, omega, turn: Rotation | None = None) -> Free:
