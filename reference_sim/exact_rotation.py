@@ -51,6 +51,7 @@ hyperbolic functions, no period).
 
 import math
 
+import numpy as np
 from numba import njit
 
 # Principal moments closer than this (relative to the largest) are taken as equal, selecting the
@@ -91,6 +92,9 @@ MAX_SERIES_TERMS = 64
 # R_C(1, 1 + e) by its series in e below this |e|: the first term left out, e^6 / 13, is below
 # 1e-19 there (2^-10 ~ 1e-3), and the duplication's later terms all fall in this range.
 RC_SERIES_MAX = 2.0**-10
+# A reduced phase j K + offset farther than this many K from 0 (it is within K up to rounding)
+# means the step's phase lambda dt was too large to represent: its rounding exceeds a period.
+LOST_PHASE = 1.5
 # sin(a/2)/a by its Taylor series below this angle (rad): the next term, a^4/3840, is below
 # 1e-19 relative there, and the division loses nothing above it.
 SMALL_ANGLE = 1e-4
@@ -284,6 +288,9 @@ def _qmul(aw, ax, ay, az, bw, bx, by, bz):
 def _qexp(vx, vy, vz):
     """The rotation by angle |v| about v / |v| (any |v|: sin and cos reduce the angle)."""
     angle = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if math.isinf(angle):  # squares overflowed (|v| > 1e154): the norm of the scaled vector
+        big = max(abs(vx), abs(vy), abs(vz))
+        angle = big * math.sqrt((vx / big) ** 2 + (vy / big) ** 2 + (vz / big) ** 2)
     if angle < SMALL_ANGLE:
         s = 0.5 - angle * angle / 48.0
     else:
@@ -378,13 +385,17 @@ def _principal_step(p1, p2, p3, i1, i2, i3, sep, l_norm, dt):
             j0 = 0.0
             offset = sn0 * _carlson_rf(cn0 * cn0, ee, 1.0)  # F(phi0 | m), |phi0| <= pi/2
         offset += lam * dt
-        turns = math.floor((j0 * quarter + offset) / (2.0 * quarter) + 0.5)
+        turns = np.floor((j0 * quarter + offset) / (2.0 * quarter) + 0.5)
+        j1 = j0 - 2.0 * turns
+        rest = j1 * quarter + offset
+        if abs(rest) > LOST_PHASE * quarter:
+            # |lambda dt| so large that its rounding exceeds a period (dt ~ 1e16 periods): the
+            # phase is lost anyway; reduce what is left so the functions stay in range.
+            j1, offset = 0.0, rest - 2.0 * quarter * np.floor(rest / (2.0 * quarter) + 0.5)
         quarter_c = 0.0
         if m1 < M1_SERIES_MAX:
             quarter_c = 0.5 * math.pi / _agm_levels(m1, m)[1]  # K' = K(m1)
-        sn1, cn1, dn1 = _jacobi_sncndn(
-            j0 - 2.0 * turns, offset, m, m1, quarter, quarter_c, levels, a_last
-        )
+        sn1, cn1, dn1 = _jacobi_sncndn(j1, offset, m, m1, quarter, quarter_c, levels, a_last)
         flip = -1.0 if turns % 2.0 != 0.0 else 1.0
         if lo_is_1:
             # w1(tau) = k sn^2(v) / (1 - (1 - k) sn^2(v)), v = tau + K, k = m1 / (1 - n):
