@@ -206,6 +206,15 @@ def test_unit_quaternion_out_of_an_unnormalised_one(case):
         assert abs(np.linalg.norm(q) - 1.0) <= UNIT_NORM_TOL, f"{name}, dt {dt:g}: |q| - 1"
 
 
+@pytest.mark.parametrize("dt", [5e-324, 1e16, -1e20, 1e300])
+def test_any_step_length_gives_a_unit_quaternion(case, dt):
+    """Beyond ~1e16 periods the phase is below rounding, but the result is still a rotation."""
+    name, body = case
+    q = _step(body, Q0, dt)
+    assert np.all(np.isfinite(q)), f"{name}: dt {dt:g} gives {q}"
+    assert abs(np.linalg.norm(q) - 1.0) <= UNIT_NORM_TOL, f"{name}: dt {dt:g}, |q| - 1"
+
+
 def test_body_momentum_follows_eulers_equations():
     """pi = R^T L from single steps of 0..10 s against DOP853 on dpi/dt = pi x I0^-1 pi."""
     body = _catalog_body("tumbling_box")
