@@ -91,16 +91,6 @@ def frames_into(model, q, L, rot, inv, omega):
         omega[b, 0], omega[b, 1], omega[b, 2] = w
 
 
-@compiled
-def body_frames(model, q, L):
-    """(B, 9) rotation matrices (row major), (B, 9) world inverse inertias and (B, 3) world
-    angular velocities of every body."""
-    nb = q.shape[0]
-    rot, inv, omega = np.empty((nb, 9)), np.empty((nb, 9)), np.empty((nb, 3))
-    frames_into(model, q, L, rot, inv, omega)
-    return rot, inv, omega
-
-
 @kernel
 def _particle(model, x, rot, b, i):
     """World position of particle i of body b."""
@@ -186,40 +176,90 @@ def _grid_pairs_into(model, x, reach, cells, dims, order, sorted_keys, found, pa
 
 
 @compiled
-def body_pairs(model, x, reach, grid):
-    """(P, 2) body pairs a < b whose bounding spheres can meet within the step, sorted.
+def all_pairs(model, x, reach):
+    """(P, 2) body pairs a < b whose bounding spheres can meet within the step (`reach`:
+    `reach_into`), sorted, tested pair by pair."""
+    pairs = np.empty((2 * x.shape[0] + 16, 2), dtype=np.int64)
+    n = _all_pairs_into(model, x, reach, pairs)
+    if n > pairs.shape[0]:
+        pairs = np.empty((n, 2), dtype=np.int64)
+        _all_pairs_into(model, x, reach, pairs)
+    return pairs[:n]
 
-    With `grid`, bodies are binned into cubic cells as wide as the largest interaction
-    distance and only bodies in neighbouring cells are tested: cost linear in the number of
-    bodies. The result is the same as testing every pair (tested), so the simulation is
-    bit-equal either way. Without a bounded grid (NaN or far-flung bodies) every pair is tested.
-    """
+
+@kernel
+def _bin(model, x, reach, cells, dims, keys):
+    """Each body's grid cell and its key (cells numbered along z, then y, then x); False if
+    the grid would be unbounded (NaN or far-flung bodies)."""
     nb = x.shape[0]
-    cell = 2.0 * (model.bound_radius + reach).max() if nb else 1.0
-    dims = np.ones(3, dtype=np.int64)
-    cells = np.zeros((nb, 3), dtype=np.int64)
+    cell = 0.0
+    for b in range(nb):
+        cell = max(cell, 2.0 * (model.bound_radius[b] + reach[b]))
     for k in range(3):
-        lo = x[:, k].min() if nb else 0.0
-        span = (x[:, k].max() - lo) / cell if nb else 0.0
+        lo, hi = x[0, k], x[0, k]
+        for b in range(nb):
+            lo, hi = min(lo, x[b, k]), max(hi, x[b, k])
+        span = (hi - lo) / cell
         if not span < 2.0**20:  # NaN, inf, or more cells than an int64 key can number
-            grid = False
-            break
+            return False
         dims[k] = int(span) + 1
         for b in range(nb):
             cells[b, k] = min(int((x[b, k] - lo) / cell), dims[k] - 1)
-    keys = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
-    order = np.argsort(keys)
-    sorted_keys = keys[order]
+    for b in range(nb):
+        keys[b] = (cells[b, 0] * dims[1] + cells[b, 1]) * dims[2] + cells[b, 2]
+    return True
+
+
+@kernel
+def _sort_by_key(keys, order, sorted_keys):
+    """order: indices sorting `keys` (heapsort, in place), and the keys in that order."""
+    n = keys.shape[0]
+    for i in range(n):
+        order[i] = i
+
+    def sift(start, end):
+        root = start
+        while 2 * root + 1 < end:
+            child = 2 * root + 1
+            if child + 1 < end and keys[order[child + 1]] > keys[order[child]]:
+                child += 1
+            if keys[order[root]] >= keys[order[child]]:
+                return
+            order[root], order[child] = order[child], order[root]
+            root = child
+
+    for start in range(n // 2 - 1, -1, -1):
+        sift(start, n)
+    for end in range(n - 1, 0, -1):
+        order[0], order[end] = order[end], order[0]
+        sift(0, end)
+    for i in range(n):
+        sorted_keys[i] = keys[order[i]]
+
+
+@compiled
+def grid_pairs(model, x, reach):
+    """`all_pairs`, found on a uniform grid: bodies are binned into cubic cells as wide as the
+    largest interaction distance and only bodies in neighbouring cells are tested, so the cost
+    grows linearly with the number of bodies. Same result (tested), so the simulation is
+    bit-equal either way. Without a bounded grid (NaN or far-flung bodies) it tests every pair.
+    """
+    nb = x.shape[0]
+    dims = np.ones(3, dtype=np.int64)
+    cells = np.zeros((nb, 3), dtype=np.int64)
+    keys = np.empty(nb, dtype=np.int64)
+    if nb == 0 or not _bin(model, x, reach, cells, dims, keys):
+        return all_pairs(model, x, reach)
+    order = np.empty(nb, dtype=np.int64)
+    sorted_keys = np.empty(nb, dtype=np.int64)
+    _sort_by_key(keys, order, sorted_keys)
     found = np.empty(nb, dtype=np.int64)
     pairs = np.empty((2 * nb + 16, 2), dtype=np.int64)
-    while True:
-        if grid:
-            n = _grid_pairs_into(model, x, reach, cells, dims, order, sorted_keys, found, pairs)
-        else:
-            n = _all_pairs_into(model, x, reach, pairs)
-        if n <= pairs.shape[0]:
-            return pairs[:n]
+    n = _grid_pairs_into(model, x, reach, cells, dims, order, sorted_keys, found, pairs)
+    if n > pairs.shape[0]:
         pairs = np.empty((n, 2), dtype=np.int64)
+        _grid_pairs_into(model, x, reach, cells, dims, order, sorted_keys, found, pairs)
+    return pairs[:n]
 
 
 @kernel
@@ -272,27 +312,6 @@ def _pair_candidates_into(model, x, rot, reach, pairs, n_pairs, out, keys, k):
     return k
 
 
-@compiled
-def find_candidates(model, x, q, v, L, dt):
-    """Contacts that could touch within the step: rows (body a, particle i, body b or -1,
-    particle j or plane index). A particle radius of slack on top of the reach keeps contacts
-    that rotation brings a little closer than the linear estimate. (The step loop finds them
-    in its own buffers, `ContactBuffers`; this is the same search, allocating.)"""
-    nb = model.body_mass.shape[0]
-    rot, _, omega = body_frames(model, q, L)
-    reach = np.empty(nb)
-    reach_into(model, v, omega, dt, (0.0, 0.0, 0.0), reach)
-    pairs = body_pairs(model, x, reach, nb >= GRID_MIN_BODIES)
-    out = np.empty((64, 4), dtype=np.int64)
-    while True:
-        keys = np.empty(out.shape[0], dtype=np.int64)
-        k = _plane_candidates_into(model, x, rot, reach, out, keys)
-        k = _pair_candidates_into(model, x, rot, reach, pairs, pairs.shape[0], out, keys, k)
-        if k <= out.shape[0]:
-            return out[:k]
-        out = np.empty((k, 4), dtype=np.int64)
-
-
 @kernel
 def contact_geometry(model, x, rot, cands, k):
     """Normal n (from b towards a), gap (m), lever arms r_a, r_b from each COM to contact k.
@@ -325,75 +344,62 @@ def _tangents(n):
 
 
 @kernel
-def _speed(jac, a, b, v, omega, k, d):
-    """Relative velocity of contact k along its direction d (0 normal, 1 and 2 tangents)."""
+def _speed(rows, a, b, v, omega):
+    """Relative velocity of a contact along the direction of its Jacobian `rows` (5, 3)."""
     u = 0.0
     for i in range(3):
-        u += jac[k, d, 0, i] * v[a, i] + jac[k, d, 1, i] * omega[a, i]
+        u += rows[0, i] * v[a, i] + rows[1, i] * omega[a, i]
         if b >= 0:
-            u -= jac[k, d, 0, i] * v[b, i] + jac[k, d, 3, i] * omega[b, i]
+            u -= rows[0, i] * v[b, i] + rows[3, i] * omega[b, i]
     return u
 
 
 @kernel
-def _push(model, jac, a, b, v, L, omega, k, d, lam):
-    """Apply the impulse lam along direction d of contact k to both bodies (dL = r x P)."""
+def _push(model, rows, a, b, v, L, omega, lam):
+    """Apply the impulse lam along the direction of Jacobian `rows` to both bodies
+    (dL = r x P)."""
     for i in range(3):
-        v[a, i] += lam * jac[k, d, 0, i] / model.body_mass[a]
-        L[a, i] += lam * jac[k, d, 1, i]
-        omega[a, i] += lam * jac[k, d, 2, i]
+        v[a, i] += lam * rows[0, i] / model.body_mass[a]
+        L[a, i] += lam * rows[1, i]
+        omega[a, i] += lam * rows[2, i]
         if b >= 0:
-            v[b, i] -= lam * jac[k, d, 0, i] / model.body_mass[b]
-            L[b, i] -= lam * jac[k, d, 3, i]
-            omega[b, i] -= lam * jac[k, d, 4, i]
+            v[b, i] -= lam * rows[0, i] / model.body_mass[b]
+            L[b, i] -= lam * rows[3, i]
+            omega[b, i] -= lam * rows[4, i]
 
 
 @kernel
-def _set_row(jac, k, d, slot, value):
-    jac[k, d, slot, 0], jac[k, d, slot, 1], jac[k, d, slot, 2] = value
-
-
-@kernel
-def _row_dot(jac, k, d, e, s1, s2):
-    """jac[k, d, s1] . jac[k, e, s2]."""
-    return (
-        jac[k, d, s1, 0] * jac[k, e, s2, 0]
-        + jac[k, d, s1, 1] * jac[k, e, s2, 1]
-        + jac[k, d, s1, 2] * jac[k, e, s2, 2]
-    )
-
-
-@kernel
-def _assemble(model, x, rot, inv, cands, dt, post, acting, active, jac, kn, kt, kt_inv, target):
-    """Per contact: whether it acts, its Jacobian rows, normal and tangent inverse masses,
-    and (before the drift) its target normal speed."""
-    nc = cands.shape[0]
-    for k in range(nc):
+def _assemble(model, x, rot, inv, cands, gate, acting, active, jac, kn, kt, kt_inv, gap):
+    """Per contact: its gap, whether it acts (`acting`, or its gap is at most `gate`), its
+    Jacobian rows and its normal and tangent inverse masses."""
+    for k in range(cands.shape[0]):
         a, b = cands[k, 0], cands[k, 2]
-        n, gap, ra, rb = contact_geometry(model, x, rot, cands, k)
-        active[k] = not (post and gap > TOUCH_TOLERANCE and not acting[k])
+        n, gap[k], ra, rb = contact_geometry(model, x, rot, cands, k)
+        active[k] = acting[k] or gap[k] <= gate
         if not active[k]:
             continue
         t1, t2 = _tangents(n)
-        inv_a = flat(inv, a)
         for d in range(3):
             direction = n if d == 0 else (t1 if d == 1 else t2)
-            arm = cross(ra, direction)
-            _set_row(jac, k, d, 0, direction)
-            _set_row(jac, k, d, 1, arm)
-            _set_row(jac, k, d, 2, mat_vec(inv_a, arm))
-            if b >= 0:
-                arm = cross(rb, direction)
-                _set_row(jac, k, d, 3, arm)
-                _set_row(jac, k, d, 4, mat_vec(flat(inv, b), arm))
+            rows = jac[k, d]
+            arm_a = cross(ra, direction)
+            arm_b = cross(rb, direction)
+            turn_a = mat_vec(flat(inv, a), arm_a)
+            turn_b = mat_vec(flat(inv, b), arm_b) if b >= 0 else (0.0, 0.0, 0.0)
+            for i in range(3):
+                rows[0, i] = direction[i]
+                rows[1, i] = arm_a[i]
+                rows[2, i] = turn_a[i]
+                rows[3, i] = arm_b[i] if b >= 0 else 0.0
+                rows[4, i] = turn_b[i]
         inv_mass = 1.0 / model.body_mass[a] + (1.0 / model.body_mass[b] if b >= 0 else 0.0)
         for d in range(3):
             for e in range(d, 3):
-                entry = (
-                    inv_mass * _row_dot(jac, k, d, e, 0, 0)
-                    + _row_dot(jac, k, d, e, 1, 2)
-                    + _row_dot(jac, k, d, e, 3, 4)
-                )
+                rd, re = jac[k, d], jac[k, e]
+                entry = 0.0
+                for i in range(3):
+                    entry += inv_mass * rd[0, i] * re[0, i] + rd[1, i] * re[2, i]
+                    entry += rd[3, i] * re[4, i]
                 if d == 0 and e == 0:
                     kn[k] = entry
                 elif d > 0:
@@ -402,8 +408,6 @@ def _assemble(model, x, rot, inv, cands, dt, post, acting, active, jac, kn, kt, 
         det = kt[k, 0] * kt[k, 3] - kt[k, 1] * kt[k, 2]
         kt_inv[k, 0], kt_inv[k, 1] = kt[k, 3] / det, -kt[k, 1] / det
         kt_inv[k, 2], kt_inv[k, 3] = -kt[k, 2] / det, kt[k, 0] / det
-        if not post:
-            target[k] = -gap / dt if gap >= 0.0 else -BAUMGARTE * gap / dt
 
 
 @kernel
@@ -418,12 +422,13 @@ def _iterate(model, cands, active, jac, kn, kt, kt_inv, target, v, L, omega, lam
                 continue
             a, b = cands[k, 0], cands[k, 2]
             # normal impulse, accumulated and kept >= 0
-            vn = _speed(jac, a, b, v, omega, k, 0)
+            normal, tangent1, tangent2 = jac[k, 0], jac[k, 1], jac[k, 2]
+            vn = _speed(normal, a, b, v, omega)
             new = max(lam[k, 0] + (target[k] - vn) / kn[k], 0.0)
             dl = new - lam[k, 0]
             if dl != 0.0:
                 lam[k, 0] = new
-                _push(model, jac, a, b, v, L, omega, k, 0, dl)
+                _push(model, normal, a, b, v, L, omega, dl)
                 change = max(change, abs(dl) * kn[k])
             if model.friction == 0.0:
                 continue
@@ -432,8 +437,8 @@ def _iterate(model, cands, active, jac, kn, kt, kt_inv, target, v, L, omega, lam
             # dissipation). Clipping the stopping impulse instead would aim the friction along
             # K_t^-1 u, off the sliding direction whenever K_t is anisotropic: a sliding cube
             # would yaw and decelerate by less than mu g.
-            g1 = _speed(jac, a, b, v, omega, k, 1)
-            g2 = _speed(jac, a, b, v, omega, k, 2)
+            g1 = _speed(tangent1, a, b, v, omega)
+            g2 = _speed(tangent2, a, b, v, omega)
             g1 -= kt[k, 0] * lam[k, 1] + kt[k, 1] * lam[k, 2]
             g2 -= kt[k, 2] * lam[k, 1] + kt[k, 3] * lam[k, 2]
             f1 = -(kt_inv[k, 0] * g1 + kt_inv[k, 1] * g2)
@@ -445,8 +450,8 @@ def _iterate(model, cands, active, jac, kn, kt, kt_inv, target, v, L, omega, lam
             d1, d2 = f1 - lam[k, 1], f2 - lam[k, 2]
             lam[k, 1], lam[k, 2] = f1, f2
             if d1 != 0.0 or d2 != 0.0:
-                _push(model, jac, a, b, v, L, omega, k, 1, d1)
-                _push(model, jac, a, b, v, L, omega, k, 2, d2)
+                _push(model, tangent1, a, b, v, L, omega, d1)
+                _push(model, tangent2, a, b, v, L, omega, d2)
                 # kn, the normal's inverse mass, scales impulses to speeds like the tangents' would
                 change = max(change, math.sqrt(d1 * d1 + d2 * d2) * kn[k])
         if change < VELOCITY_TOLERANCE:
@@ -474,10 +479,11 @@ class ContactBuffers(NamedTuple):
 
     Per body: rot, inv (B, 9) rotation matrices and world inverse inertias (row major), omega
     (B, 3), reach (B,). Body pairs that can meet: pairs (P, 2). Per candidate (capacity C):
-    cands (C, 4), keys (C,) (`contact_key` order), jac (C, 3, 5, 3), kn (C,), kt and kt_inv
-    (C, 4) (2 x 2 row major), target, bounce (C,), active, acting (C,), lam (C, 3). The warm
+    cands (C, 4), keys (C,) (increasing), jac (C, 3, 5, 3), kn (C,), kt and kt_inv (C, 4)
+    (2 x 2 row major), gap, target, bounce (C,), active, acting (C,), lam (C, 3). The warm
     start: the previous step's impulses before and after the drift, keys and impulses of
-    counts[0] and counts[1] contacts, in key order.
+    counts[0] and counts[1] contacts, in key order. counts[2]: how many rows of `pairs` the
+    caller filled for this step, or -1 to have them found pair by pair.
     """
 
     rot: np.ndarray
@@ -491,6 +497,7 @@ class ContactBuffers(NamedTuple):
     kn: np.ndarray
     kt: np.ndarray
     kt_inv: np.ndarray
+    gap: np.ndarray
     target: np.ndarray
     bounce: np.ndarray
     active: np.ndarray
@@ -507,6 +514,8 @@ class ContactBuffers(NamedTuple):
 def contact_buffers(n_bodies, capacity, pair_capacity):
     """Empty buffers for `capacity` candidates and `pair_capacity` body pairs."""
     c = capacity
+    counts = np.zeros(3, dtype=np.int64)
+    counts[2] = -1
     return ContactBuffers(
         np.empty((n_bodies, 9)),
         np.empty((n_bodies, 9)),
@@ -521,6 +530,7 @@ def contact_buffers(n_bodies, capacity, pair_capacity):
         np.zeros((c, 4)),
         np.zeros(c),
         np.zeros(c),
+        np.zeros(c),
         np.zeros(c, dtype=np.bool_),
         np.zeros(c, dtype=np.bool_),
         np.zeros((c, 3)),
@@ -528,37 +538,47 @@ def contact_buffers(n_bodies, capacity, pair_capacity):
         np.zeros((c, 3)),
         np.empty(c, dtype=np.int64),
         np.zeros((c, 3)),
-        np.zeros(2, dtype=np.int64),
+        counts,
     )
+
+
+@kernel
+def _carry_over(old, new):
+    for k in range(old.counts[0]):
+        new.pre_keys[k] = old.pre_keys[k]
+        for d in range(3):
+            new.pre_lam[k, d] = old.pre_lam[k, d]
+    for k in range(old.counts[1]):
+        new.post_keys[k] = old.post_keys[k]
+        for d in range(3):
+            new.post_lam[k, d] = old.post_lam[k, d]
+    for k in range(3):
+        new.counts[k] = old.counts[k]
 
 
 @compiled
 def grown(buf, capacity, pair_capacity):
     """Buffers with at least these capacities, carrying over the warm start of `buf`."""
-    new = contact_buffers(
-        buf.rot.shape[0],
-        max(capacity, buf.cands.shape[0]),
-        max(pair_capacity, buf.pairs.shape[0]),
-    )
-    n_pre, n_post = buf.counts[0], buf.counts[1]
-    new.pre_keys[:n_pre] = buf.pre_keys[:n_pre]
-    new.pre_lam[:n_pre] = buf.pre_lam[:n_pre]
-    new.post_keys[:n_post] = buf.post_keys[:n_post]
-    new.post_lam[:n_post] = buf.post_lam[:n_post]
-    new.counts[:] = buf.counts
+    nb, c, p = buf.rot.shape[0], buf.cands.shape[0], buf.pairs.shape[0]
+    new = contact_buffers(nb, max(capacity, c), max(pair_capacity, p))
+    _carry_over(buf, new)
     return new
 
 
 @kernel
-def find_candidates_into(model, x, v, dt, kick, n_pairs, buf):
-    """The step's candidates into `buf` (`find_candidates`, with the integrator's `kick` to v
-    before contact): their count, which may exceed the capacity (then nothing else is valid),
-    or minus the number of body pairs if they exceed theirs.
+def find_candidates_into(model, x, v, dt, kick, buf):
+    """The step's contact candidates into `buf`: rows (body a, particle i, body b or -1,
+    particle j or plane index) of the contacts that could touch within the step, given the
+    velocity change `kick` the integrator makes before contact. A particle radius of slack on
+    top of the reach keeps contacts that rotation brings a little closer than the linear
+    estimate. Returns their count, which may exceed the capacity (then nothing else is valid),
+    or minus the number of body pairs if those exceed theirs.
 
-    n_pairs < 0: the body pairs are found here, pair by pair; else `buf.pairs[:n_pairs]` holds
-    them (found by the caller on the grid, `body_pairs`). Needs `buf.rot` and `buf.omega`.
+    Body pairs: `buf.pairs[:buf.counts[2]]` if the caller found them (`grid_pairs`), else found
+    here pair by pair. Needs `buf.rot` and `buf.omega`.
     """
     reach_into(model, v, buf.omega, dt, kick, buf.reach)
+    n_pairs = buf.counts[2]
     if n_pairs < 0:
         n_pairs = _all_pairs_into(model, x, buf.reach, buf.pairs)
         if n_pairs > buf.pairs.shape[0]:
@@ -584,56 +604,32 @@ def _warm_start(model, nc, buf, v, L, warm_keys, warm_lam, n_warm):
                 buf.lam[k, d] = lam
                 if lam != 0.0:
                     a, b = buf.cands[k, 0], buf.cands[k, 2]
-                    _push(model, buf.jac, a, b, v, L, buf.omega, k, d, lam)
+                    _push(model, buf.jac[k, d], a, b, v, L, buf.omega, lam)
 
 
 @kernel
-def _remember(nc, buf, keep, keys, lam, slot):
-    """Keys and impulses of the contacts flagged in `keep`, in key order, for the next step."""
+def _remember(nc, buf, keep, keys, lam):
+    """Keys and impulses of the contacts flagged in `keep`, in key order, for the next step;
+    returns how many."""
     n = 0
     for k in range(nc):
         if keep[k]:
             keys[n] = buf.keys[k]
             lam[n, 0], lam[n, 1], lam[n, 2] = buf.lam[k, 0], buf.lam[k, 1], buf.lam[k, 2]
             n += 1
-    buf.counts[slot] = n
+    return n
 
 
 @kernel
-def _solve(model, x, v, L, nc, dt, post, buf, warm_keys, warm_lam, n_warm):
-    """Projected Gauss-Seidel on the contacts' normal and friction impulses, in place.
-
-    Before the drift (post False) every candidate is speculative, with target normal speed
-    -gap / dt; after it (post True) the contacts that pushed before the drift (`buf.acting`) or
-    touch now act, with normal speed target `buf.target` (the bounce, or 0). Impulses start
-    from those of the same contacts in the previous step (`warm_keys`, `warm_lam`), so a
-    resting stack converges in a few sweeps instead of hundreds. Per contact and direction
-    (normal, two tangents) the Jacobian rows are precomputed: jac[k, d] = (direction, r_a x dir,
-    I_a^-1 (r_a x dir), r_b x dir, I_b^-1 (r_b x dir)). Friction is solved as a 2 x 2 block and
-    projected onto the disc. Needs `buf.rot`, `buf.inv`, `buf.omega` of the current q and L.
-    Returns the sweeps used.
-    """
-    c = buf.cands[:nc]
-    _assemble(
-        model,
-        x,
-        buf.rot,
-        buf.inv,
-        c,
-        dt,
-        post,
-        buf.acting,
-        buf.active,
-        buf.jac,
-        buf.kn,
-        buf.kt,
-        buf.kt_inv,
-        buf.target,
-    )
+def _solve(model, v, L, nc, buf, warm_keys, warm_lam, n_warm):
+    """Projected Gauss-Seidel on the normal and friction impulses of the active contacts
+    (`_assemble`), in place, towards `buf.target` normal speeds. Impulses start from those of
+    the same contacts in the previous step (`warm_keys`, `warm_lam`), so a resting stack
+    converges in a few sweeps instead of hundreds. Returns the sweeps used."""
     _warm_start(model, nc, buf, v, L, warm_keys, warm_lam, n_warm)
     return _iterate(
         model,
-        c,
+        buf.cands[:nc],
         buf.active,
         buf.jac,
         buf.kn,
@@ -651,7 +647,9 @@ def _solve(model, x, v, L, nc, dt, post, buf, warm_keys, warm_lam, n_warm):
 def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
     """Speculative impulses on the first nc candidates of `buf`, on the velocity the drift will
     use: v + drift_gravity (m/s), the part of this step's gravity the integrator adds during the
-    drift. Changes v and L; needs `buf.rot`, `buf.inv`, `buf.omega` of the step's start.
+    drift. Every candidate acts, with target normal speed -gap / dt (a gap already negative is
+    closed at BAUMGARTE of its depth per step). Changes v and L; needs `buf.rot`, `buf.inv`,
+    `buf.omega` of the step's start.
 
     Leaves in `buf.bounce` the normal speed each contact must leave with after the drift: -e
     times its approach speed for an impact (a contact closing within the step faster than
@@ -661,14 +659,33 @@ def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
     for b in range(v.shape[0]):
         for i in range(3):
             v[b, i] += drift_gravity[i]
+    cands = buf.cands[:nc]
     for k in range(nc):
         buf.bounce[k] = 0.0
-        buf.acting[k] = False
-    _bounces(model, x, buf.rot, v, buf.omega, buf.cands[:nc], dt, bounce_threshold, buf.bounce)
-    _solve(model, x, v, L, nc, dt, False, buf, buf.pre_keys, buf.pre_lam, buf.counts[0])
+        buf.acting[k] = True
+    _bounces(model, x, buf.rot, v, buf.omega, cands, dt, bounce_threshold, buf.bounce)
+    _assemble(
+        model,
+        x,
+        buf.rot,
+        buf.inv,
+        cands,
+        TOUCH_TOLERANCE,
+        buf.acting,
+        buf.active,
+        buf.jac,
+        buf.kn,
+        buf.kt,
+        buf.kt_inv,
+        buf.gap,
+    )
+    for k in range(nc):
+        gap = buf.gap[k]
+        buf.target[k] = -gap / dt if gap >= 0.0 else -BAUMGARTE * gap / dt
+    _solve(model, v, L, nc, buf, buf.pre_keys, buf.pre_lam, buf.counts[0])
     for k in range(nc):
         buf.acting[k] = buf.lam[k, 0] > 0.0
-    _remember(nc, buf, buf.acting, buf.pre_keys, buf.pre_lam, 0)
+    buf.counts[0] = _remember(nc, buf, buf.acting, buf.pre_keys, buf.pre_lam)
     for k in range(nc):
         buf.acting[k] = buf.acting[k] or buf.bounce[k] > 0.0
     for b in range(v.shape[0]):
@@ -679,10 +696,25 @@ def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
 @kernel
 def after_drift(model, x, q, v, L, nc, dt, buf):
     """Impulses after the drift on the contacts that pushed before it or bounce
-    (`buf.acting`) or touch now: the bounce targets of `before_drift`, else inelastic.
-    Changes v and L."""
+    (`buf.acting`) or touch now (gap below TOUCH_TOLERANCE): the bounce targets of
+    `before_drift`, else inelastic (normal speed >= 0, and friction). Changes v and L."""
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
+    _assemble(
+        model,
+        x,
+        buf.rot,
+        buf.inv,
+        buf.cands[:nc],
+        TOUCH_TOLERANCE,
+        buf.acting,
+        buf.active,
+        buf.jac,
+        buf.kn,
+        buf.kt,
+        buf.kt_inv,
+        buf.gap,
+    )
     for k in range(nc):
         buf.target[k] = buf.bounce[k]
-    _solve(model, x, v, L, nc, dt, True, buf, buf.post_keys, buf.post_lam, buf.counts[1])
-    _remember(nc, buf, buf.active, buf.post_keys, buf.post_lam, 1)
+    _solve(model, v, L, nc, buf, buf.post_keys, buf.post_lam, buf.counts[1])
+    buf.counts[1] = _remember(nc, buf, buf.active, buf.post_keys, buf.post_lam)

@@ -52,7 +52,7 @@ hyperbolic functions, no period).
 import math
 
 import numpy as np
-from numba import njit
+from reference_sim.jit import kernel
 
 # Principal moments closer than this (relative to the largest) are taken as equal, selecting the
 # isotropic or axisymmetric closed form (exactly equal moments are a 0/0 in the elliptic
@@ -100,7 +100,7 @@ LOST_PHASE = 1.5
 SMALL_ANGLE = 1e-4
 
 
-@njit(cache=True)
+@kernel
 def _carlson_rf(x, y, z):
     """Carlson's R_F(x, y, z) for x, y, z >= 0, at most one zero (duplication, Carlson 1995)."""
     x0, y0 = x, y
@@ -124,7 +124,7 @@ def _carlson_rf(x, y, z):
     return (1.0 - e2 / 10.0 + e3 / 14.0 + e2 * e2 / 24.0 - 3.0 * e2 * e3 / 44.0) / math.sqrt(a)
 
 
-@njit(cache=True)
+@kernel
 def _carlson_rc1(e):
     """R_C(1, 1 + e) for e > -1: atan(sqrt e) / sqrt e, or atanh for e < 0."""
     if abs(e) < RC_SERIES_MAX:
@@ -139,7 +139,7 @@ def _carlson_rc1(e):
     return 1.0
 
 
-@njit(cache=True)
+@kernel
 def _carlson_rj(x, y, z, p):
     """Carlson's R_J(x, y, z, p) for x, y, z >= 0 (at most one zero), p > 0 (Carlson 1995)."""
     x0, y0, z0 = x, y, z
@@ -180,14 +180,14 @@ def _carlson_rj(x, y, z, p):
     return fac * series / (a * math.sqrt(a)) + 6.0 * total
 
 
-@njit(cache=True)
+@kernel
 def _agm_step(a, b, c):
     """One level of the arithmetic-geometric mean (a, b) and c = (a - b) / 2, without a - b."""
     a_next = 0.5 * (a + b)
     return a_next, math.sqrt(a * b), 0.25 * c * c / a_next
 
 
-@njit(cache=True)
+@kernel
 def _agm_levels(m, m1):
     """(levels, a_N): the AGM of 1 and sqrt(m1) has converged after `levels` steps; K = pi/2a_N."""
     a, b, c = 1.0, math.sqrt(m1), math.sqrt(m)
@@ -198,7 +198,7 @@ def _agm_levels(m, m1):
     return levels, a
 
 
-@njit(cache=True)
+@kernel
 def _jacobi_am(u, m, m1, levels, a_last):
     """Jacobi amplitude am(u | m) by the descending AGM (A&S 16.4.3), from m and m1 = 1 - m.
 
@@ -216,7 +216,7 @@ def _jacobi_am(u, m, m1, levels, a_last):
     return amp
 
 
-@njit(cache=True)
+@kernel
 def _dn_series(x, quarter, quarter_c):
     """dn(x | m) = pi / (2 K') sum_n sech(pi (x - 2 n K) / (2 K')), all terms positive.
 
@@ -233,7 +233,7 @@ def _dn_series(x, quarter, quarter_c):
     return f * total
 
 
-@njit(cache=True)
+@kernel
 def _jacobi_sncndn(j, offset, m, m1, quarter, quarter_c, levels, a_last):
     """sn, cn, dn (r | m) at r = j K + offset, |r| <= K, each to a few roundings of itself.
 
@@ -263,7 +263,7 @@ def _jacobi_sncndn(j, offset, m, m1, quarter, quarter_c, levels, a_last):
     return sx, cx, dx
 
 
-@njit(cache=True)
+@kernel
 def _weight_integral(s, c, m1, k):
     """(s^3 / 3) R_J(c^2, c^2 + m1 s^2, 1, c^2 + k s^2): integral_0^u sn^2 / (1 - (1 - k) sn^2).
 
@@ -273,7 +273,7 @@ def _weight_integral(s, c, m1, k):
     return s * ss * _carlson_rj(cc, cc + m1 * ss, 1.0, cc + k * ss) / 3.0
 
 
-@njit(cache=True)
+@kernel
 def _qmul(aw, ax, ay, az, bw, bx, by, bz):
     """Hamilton product of two quaternions given as scalars."""
     return (
@@ -284,7 +284,7 @@ def _qmul(aw, ax, ay, az, bw, bx, by, bz):
     )
 
 
-@njit(cache=True)
+@kernel
 def _qexp(vx, vy, vz):
     """The rotation by angle |v| about v / |v| (any |v|: sin and cos reduce the angle)."""
     angle = math.sqrt(vx * vx + vy * vy + vz * vz)
@@ -298,7 +298,7 @@ def _qexp(vx, vy, vz):
     return math.cos(0.5 * angle), s * vx, s * vy, s * vz
 
 
-@njit(cache=True)
+@kernel
 def _quat_from_frame(m00, m01, m02, m10, m11, m12, m20, m21, m22):
     """Unit quaternion of the rotation matrix m (rows m0*, m1*, m2*), Shepperd's method."""
     tr = m00 + m11 + m22
@@ -318,7 +318,7 @@ def _quat_from_frame(m00, m01, m02, m10, m11, m12, m20, m21, m22):
     return w / n, x / n, y / n, z / n
 
 
-@njit(cache=True)
+@kernel
 def _euler_b(p1, p2, p3):
     """Quaternion of B(pi) = Rx(theta) Rz(psi), the rotation taking pi to |pi| z."""
     theta = math.atan2(math.sqrt(p1 * p1 + p2 * p2), p3)
@@ -329,7 +329,7 @@ def _euler_b(p1, p2, p3):
     return ct * cp, st * cp, -st * sp, ct * sp
 
 
-@njit(cache=True)
+@kernel
 def _principal_step(p1, p2, p3, i1, i2, i3, sep, l_norm, dt):
     """Rotation (w, x, y, z) in principal coordinates over dt: B(pi0)^-1 Rz(dphi) B(pi1).
 
@@ -432,7 +432,7 @@ def _principal_step(p1, p2, p3, i1, i2, i3, sep, l_norm, dt):
     return _qmul(b0[0], -b0[1], -b0[2], -b0[3], t[0], t[1], t[2], t[3])
 
 
-@njit(cache=True)
+@kernel
 def _signed_unit(p, qw, qx, qy, qz):
     """p normalised, and negated if it points away from q (q and -q are the same rotation)."""
     n = math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2] + p[3] * p[3])
@@ -441,7 +441,7 @@ def _signed_unit(p, qw, qx, qy, qz):
     return p[0] / n, p[1] / n, p[2] / n, p[3] / n
 
 
-@njit(cache=True)
+@kernel
 def exact_rotation(q, L, moments, axes, dt):
     """Orientation (w, x, y, z) after the torque-free flow for time dt, in closed form.
 

@@ -1,4 +1,4 @@
-"""The rigid integrators: `euler`, `splitting` and `rk4`, compiled step loops.
+"""The rigid integrators: `euler`, `splitting`, `rk4` and `exact`, compiled step loops.
 
 State per body: COM x, orientation q, COM velocity v and world angular momentum L. The world
 inertia is R(q) I0 R(q)^T and omega = I(t)^-1 L. Uniform gravity exerts no torque about the
@@ -13,6 +13,8 @@ as impulses before and after the drift (`reference_sim.contact`).
   second order, L exact.
 - rk4: classic fourth-order Runge-Kutta on (x, q, v, L) with dq/dt = (0, omega) q / 2; q is
   normalised after the step.
+- exact: the splitting with the free rotation over dt in closed form
+  (`reference_sim.exact_rotation`): exact to rounding without contact, second order with it.
 """
 
 import math
@@ -23,20 +25,21 @@ from reference_sim.contact import (
     GRID_MIN_BODIES,
     after_drift,
     before_drift,
-    body_pairs,
     contact_buffers,
     find_candidates_into,
     frames_into,
+    grid_pairs,
     grown,
     reach_into,
     world_omega,
 )
+from reference_sim.exact_rotation import exact_rotation
 from reference_sim.jit import compiled, kernel
 from reference_sim.quaternion import qexp, qmatrix, qmul, qnormalize
-from reference_sim.vec3 import mat, mat_t_vec, mat_vec, row
+from reference_sim.vec3 import dot, mat, mat_t_vec, mat_vec, row, vec
 
-INTEGRATORS = {"euler": 0, "splitting": 1, "rk4": 2}
-EULER, SPLITTING, RK4 = 0, 1, 2
+INTEGRATORS = {"euler": 0, "splitting": 1, "rk4": 2, "exact": 3}
+EULER, SPLITTING, RK4, EXACT = 0, 1, 2, 3
 # Impacts slower than this many steps' worth of gravity are resting contacts, not bounces:
 # a body lying still gains |g| dt of approach speed every step and must not bounce on it.
 BOUNCE_STEPS = 2.0
@@ -124,6 +127,9 @@ def _drift(model, integrator, x, q, v, L, dt):
             v[b, i] += 0.5 * dt * g[i]
         if integrator == SPLITTING:
             _store_quat(q, b, _free_rotation_split(model, qb, lb, b, dt))
+        elif integrator == EXACT:
+            moments, axes = model.principal_moments[b], model.principal_axes[b]
+            _store_quat(q, b, exact_rotation(qb, lb, moments, axes, dt))
         else:
             _store_quat(q, b, _rk4_rotation(model, qb, lb, b, dt))
 
@@ -145,13 +151,12 @@ def _free_step(model, integrator, x, q, v, L, dt):
 
 
 @kernel
-def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, n_pairs, buf):
+def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, buf):
     """Advance every body by dt in place; contact impulses before and after the drift.
 
-    `buf` (`ContactBuffers`) holds the contacts' work space and last step's impulses for the
-    warm start. n_pairs < 0: body pairs are tested here pair by pair; else `buf.pairs` holds
-    them. Returns 0, or (if `buf` is too small, before changing anything) the candidates'
-    count it needs, or minus the body pairs' count.
+    `buf` (`ContactBuffers`) holds the contacts' work space, the body pairs if the caller found
+    them, and last step's impulses for the warm start. Returns 0, or (if `buf` is too small,
+    before changing anything) the candidates' count it needs, or minus the body pairs' count.
     """
     if not model.contact:
         _free_step(model, integrator, x, q, v, L, dt)
@@ -160,7 +165,7 @@ def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, n_pairs, buf
     kick = (0.0, 0.0, 0.0)
     if integrator == EULER and model.gravity_on:
         kick = (dt * model.gravity[0], dt * model.gravity[1], dt * model.gravity[2])
-    nc = find_candidates_into(model, x, v, dt, kick, n_pairs, buf)
+    nc = find_candidates_into(model, x, v, dt, kick, buf)
     if nc < 0 or nc > buf.cands.shape[0]:
         return nc
     _kick(model, integrator, v, dt)
@@ -183,44 +188,44 @@ def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, n_pairs, buf
 
 @kernel
 def _steps(
-    model, integrator, x, q, v, L, dt, bounce_threshold, buf, n, n_steps, stride, out, steps, s
+    model, integrator, x, q, v, L, dt, threshold, buf, progress, last, n_steps, stride, out, steps
 ):
-    """Steps n..n_steps, pairs tested pair by pair, recording samples from slot s; returns
-    (next step, next slot, 0), or stops before a step `buf` is too small for, returning what it
-    needs (`rigid_step`)."""
-    while n <= n_steps:
-        needed = rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, -1, buf)
+    """Steps progress[0]..last of n_steps, recording samples from slot progress[1] (both
+    advanced in place); returns 0, or stops before a step `buf` is too small for and returns
+    what it needs (`rigid_step`)."""
+    while progress[0] <= last:
+        n = progress[0]
+        needed = rigid_step(model, integrator, x, q, v, L, dt, threshold, buf)
         if needed != 0:
-            return n, s, needed
+            return needed
         if n % stride == 0 or n == n_steps:
-            _record(model, x, q, v, L, out, s)
-            steps[s] = n
-            s += 1
-        n += 1
-    return n, s, 0
+            _record(model, x, q, v, L, out[progress[1]])
+            steps[progress[1]] = n
+            progress[1] += 1
+        progress[0] += 1
+    return 0
 
 
 @compiled
 def _grid_pairs(model, integrator, x, q, v, L, dt, buf):
-    """Body pairs of the coming step, found on the grid (`body_pairs`), copied into `buf`
-    (grown if needed); returns the buffers and the pairs' count."""
+    """Body pairs of the coming step, found on the grid (`grid_pairs`), copied into `buf`
+    (grown if needed) for `rigid_step`; returns the buffers."""
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
-    kick = np.zeros(3)
-    if integrator == EULER and model.gravity_on:
-        kick = dt * model.gravity
+    g = model.gravity if integrator == EULER and model.gravity_on else np.zeros(3)
     reach = np.empty(x.shape[0])
-    reach_into(model, v, buf.omega, dt, (kick[0], kick[1], kick[2]), reach)
-    pairs = body_pairs(model, x, reach, True)
+    reach_into(model, v, buf.omega, dt, (dt * g[0], dt * g[1], dt * g[2]), reach)
+    pairs = grid_pairs(model, x, reach)
     if pairs.shape[0] > buf.pairs.shape[0]:
         buf = grown(buf, buf.cands.shape[0], 2 * pairs.shape[0])
-    buf.pairs[: pairs.shape[0]] = pairs
-    return buf, pairs.shape[0]
+    for p in range(pairs.shape[0]):
+        buf.pairs[p, 0], buf.pairs[p, 1] = pairs[p, 0], pairs[p, 1]
+    buf.counts[2] = pairs.shape[0]
+    return buf
 
 
 @kernel
-def _record(model, x, q, v, L, samples, s):
-    """Sample s: x, q, v and world omega of every body."""
-    out = samples[s]
+def _record(model, x, q, v, L, out):
+    """One sample (B, 13): x, q, v and world omega of every body."""
     for b in range(x.shape[0]):
         qb = (q[b, 0], q[b, 1], q[b, 2], q[b, 3])
         for i in range(3):
@@ -239,43 +244,37 @@ def run_rigid(model, integrator, x, q, v, L, dt, n_steps, stride):
     n_samples = n_steps // stride + 1 + (1 if n_steps % stride else 0)
     out = np.empty((n_samples, x.shape[0], 13))
     steps = np.empty(n_samples, dtype=np.int64)
-    bounce_threshold = BOUNCE_STEPS * np.sqrt(np.dot(model.gravity, model.gravity)) * dt
+    threshold = BOUNCE_STEPS * math.sqrt(dot(vec(model.gravity), vec(model.gravity))) * dt
     if not model.contact:
         _free_steps(model, integrator, x, q, v, L, dt, n_steps, stride, out, steps)
         return steps, out
     nb = x.shape[0]
     buf = contact_buffers(nb, 8 * nb + 16, 4 * nb + 16)
-    _record(model, x, q, v, L, out, 0)
+    _record(model, x, q, v, L, out[0])
     steps[0] = 0
-    n, s = 1, 1
-    while n <= n_steps:
-        if nb < GRID_MIN_BODIES:
-            n, s, needed = _steps(
-                model,
-                integrator,
-                x,
-                q,
-                v,
-                L,
-                dt,
-                bounce_threshold,
-                buf,
-                n,
-                n_steps,
-                stride,
-                out,
-                steps,
-                s,
-            )
-        else:
-            buf, n_pairs = _grid_pairs(model, integrator, x, q, v, L, dt, buf)
-            needed = rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, n_pairs, buf)
-            if needed == 0:
-                if n % stride == 0 or n == n_steps:
-                    _record(model, x, q, v, L, out, s)
-                    steps[s] = n
-                    s += 1
-                n += 1
+    progress = np.ones(2, dtype=np.int64)  # the next step and the next sample's slot
+    while progress[0] <= n_steps:
+        last = n_steps
+        if nb >= GRID_MIN_BODIES:  # body pairs from the grid, one step at a time
+            buf = _grid_pairs(model, integrator, x, q, v, L, dt, buf)
+            last = progress[0]
+        needed = _steps(
+            model,
+            integrator,
+            x,
+            q,
+            v,
+            L,
+            dt,
+            threshold,
+            buf,
+            progress,
+            last,
+            n_steps,
+            stride,
+            out,
+            steps,
+        )
         if needed < 0:
             buf = grown(buf, buf.cands.shape[0], -2 * needed)
         elif needed > 0:
@@ -287,12 +286,12 @@ def run_rigid(model, integrator, x, q, v, L, dt, n_steps, stride):
 def _free_steps(model, integrator, x, q, v, L, dt, n_steps, stride, out, steps):
     """`run_rigid` without contact: every step is `rigid_step`'s drift (and euler's kick)
     alone, in one kernel, so a step makes no counted call."""
-    _record(model, x, q, v, L, out, 0)
+    _record(model, x, q, v, L, out[0])
     steps[0] = 0
     s = 1
     for n in range(1, n_steps + 1):
         _free_step(model, integrator, x, q, v, L, dt)
         if n % stride == 0 or n == n_steps:
-            _record(model, x, q, v, L, out, s)
+            _record(model, x, q, v, L, out[s])
             steps[s] = n
             s += 1

@@ -15,10 +15,10 @@ from cases.builders import box_corners, box_walls
 from comparators.reference import model_from_scene
 from reference_sim.contact import (
     GRID_MIN_BODIES,
-    body_frames,
-    body_pairs,
+    all_pairs,
     contact_buffers,
     frames_into,
+    grid_pairs,
     reach_into,
 )
 from reference_sim.model import rigid_initial_state
@@ -140,10 +140,10 @@ def crowd(n_side: int = 4, seed: int = 7) -> Scene:
 
 
 def _reach(model, state, dt):
-    rot, inv, omega = body_frames(model, state.q, state.L)
-    reach = np.empty(len(model.body_mass))
-    reach_into(model, state.v, omega, dt, (0.0, 0.0, 0.0), reach)
-    return reach
+    buf = contact_buffers(len(model.body_mass), 1, 1)
+    frames_into(model, state.q, state.L, buf.rot, buf.inv, buf.omega)
+    reach_into(model, state.v, buf.omega, dt, (0.0, 0.0, 0.0), buf.reach)
+    return buf.reach
 
 
 def test_grid_finds_the_same_body_pairs():
@@ -151,8 +151,8 @@ def test_grid_finds_the_same_body_pairs():
     model, state = _state(scene)
     for dt in (0.005, 0.05, 0.5):  # from few pairs to nearly all of them
         reach = _reach(model, state, dt)
-        grid = body_pairs(model, state.x, reach, True)
-        every = body_pairs(model, state.x, reach, False)
+        grid = grid_pairs(model, state.x, reach)
+        every = all_pairs(model, state.x, reach)
         assert len(every) > 0
         np.testing.assert_array_equal(grid, every)
 
@@ -162,14 +162,10 @@ def test_grid_falls_back_on_far_flung_and_nan_bodies():
     reach = _reach(model, state, 0.005)
     far = state.x.copy()
     far[0] = (1e9, 0.0, 0.0)
-    np.testing.assert_array_equal(
-        body_pairs(model, far, reach, True), body_pairs(model, far, reach, False)
-    )
+    np.testing.assert_array_equal(grid_pairs(model, far, reach), all_pairs(model, far, reach))
     broken = state.x.copy()
     broken[3] = np.nan
-    np.testing.assert_array_equal(
-        body_pairs(model, broken, reach, True), body_pairs(model, broken, reach, False)
-    )
+    np.testing.assert_array_equal(grid_pairs(model, broken, reach), all_pairs(model, broken, reach))
 
 
 @pytest.mark.parametrize("integrator", ["euler", "splitting"])
@@ -186,17 +182,16 @@ def test_grid_and_pairwise_steps_are_bit_equal(integrator):
         buf = contact_buffers(nb, 64 * nb, nb * nb)
         touched = 0
         for _ in range(100):
-            n_pairs = -1
             if use_grid:
                 frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
                 kick = tuple(scene.dt * model.gravity) if integrator == "euler" else (0.0,) * 3
                 reach = np.empty(nb)
                 reach_into(model, v, buf.omega, scene.dt, kick, reach)
-                pairs = body_pairs(model, x, reach, True)
+                pairs = grid_pairs(model, x, reach)
                 buf.pairs[: len(pairs)] = pairs
-                n_pairs = len(pairs)
-                touched += n_pairs
-            assert rigid_step(model, code, x, q, v, L, scene.dt, threshold, n_pairs, buf) == 0
+                buf.counts[2] = len(pairs)
+                touched += len(pairs)
+            assert rigid_step(model, code, x, q, v, L, scene.dt, threshold, buf) == 0
         results.append((x, q, v, L))
         if use_grid:
             assert touched > 0  # bodies did come close
