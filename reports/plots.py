@@ -1,13 +1,16 @@
-"""The report's figures, one PNG per case and kind, 800 px wide.
+"""The report's figures, one PNG per case and kind, 800 px wide, and the throughput figure of
+all cases (the report's and `rigidbench bench`'s).
 
 Every figure colours a run by its engine and marks it (marker and line style) by its integrator,
 the same in every figure (`run_style`). Figures are `matplotlib.figure.Figure` objects rendered
 by Agg, never pyplot's: nothing is registered globally, so nothing stays open after saving.
-Inputs are the rows of one case from a sweep's results (`comparators.sweep.RESULT_COLUMNS`).
+Inputs are the rows of one case from a sweep's results (`comparators.sweep.RESULT_COLUMNS`), or
+for throughput a table with `comparators.bench.BENCH_COLUMNS`.
 """
 
 from __future__ import annotations
 
+import textwrap
 import zlib
 from pathlib import Path
 
@@ -268,6 +271,7 @@ def plot_stability(runs: pd.DataFrame, path: Path) -> Path:
 
 
 THROUGHPUT_ROW_IN = 0.55  # inches per case row: room for one marker per engine/integrator
+NOTE_WIDTH = 120  # characters per line of 7-point text across the 800 px figure
 
 
 def plot_throughput(table: pd.DataFrame, path: Path, title: str | None = None) -> Path:
@@ -312,13 +316,14 @@ def plot_throughput(table: pd.DataFrame, path: Path, title: str | None = None) -
             ax.xaxis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
     ax_rate.set_yticks(range(len(rows)), labels, fontsize=8)
     ax_rate.set_ylim(len(rows) - 0.5, -0.5)  # first case on top
-    ax_rate.set_xlabel("steps/s, stepping only (median, bar: min to max)")
-    ax_ratio.set_xlabel("ratio to MuJoCo Euler (same case and dt)")
+    ax_rate.set_xlabel("steps/s, stepping only\n(median, bar: min to max)")
+    ax_ratio.set_xlabel("ratio to MuJoCo Euler\n(same case and dt)")
     fig.suptitle(title or "stepping throughput (higher is faster)", fontsize=10)
     untimed = table[~np.isfinite(table["steps_per_s"].to_numpy(float))]
     note = {}
     if len(untimed):
         listed = ", ".join(f"{r.case} {r.engine} {r.integrator}" for r in untimed.itertuples())
-        note = {"title": f"not timed (failed or diverged): {listed}"[:200], "title_fontsize": 7}
+        text = textwrap.fill(f"not timed (failed or diverged): {listed}", NOTE_WIDTH)
+        note = {"title": text, "title_fontsize": 7}
     _legend_below(fig, ncols=4, **note)
     return _save(fig, path)
