@@ -6,7 +6,8 @@ from model building as `wall_s`). Per case and dt, every engine/integrator runs 
 (its `setup_s` is reported, its trajectory gives the verdict), then REPEATS timed repeats go
 round-robin over the engines/integrators, each round starting one further along, so that
 machine load during the bench falls on all of them alike. steps/s is the median over the
-repeats of steps / wall_s, with the min and max beside it.
+repeats of steps / wall_s, with the min and max beside it. Each run simulates the case's
+duration capped at BENCH_DURATION_S (10 s: 1000 steps at dt 0.01), or a given duration.
 
 `throughput_from_results` makes the same table from a sweep's results (`comparators.sweep`),
 for the report.
@@ -49,10 +50,11 @@ BASELINE = ("mujoco", "Euler")
 # The architecture's timing rule: a median with min and max needs at least this many repeats.
 MIN_REPEATS = 5
 REPEATS = MIN_REPEATS
-# Simulated seconds per run at most (unless a duration is given): 1000 steps at dt 0.01. The
-# slowest runs (the reference's contact solver, about 1e4 steps/s; its 6000-step bounce_e0.8
-# at dt 0.001) then take about 0.5 s, the fastest (MuJoCo on a free body) about 1 ms, and the
-# whole catalog a few minutes.
+# Simulated seconds per run at most (unless a duration is given): 1000 steps at dt 0.01, so
+# every run takes enough steps to time and the long cases (seed_cube's 100 s) no more than the
+# others. Measured: the slowest runs (the reference's contact solver at 6e3 to 1e4 steps/s,
+# e.g. bounce_e0.8's 6000 steps at dt 0.001) take about 1 s, a free body on MuJoCo about 1 ms,
+# and the whole catalog (180 rows, 5 repeats) 2.5 minutes on this shared 2-core machine.
 BENCH_DURATION_S = 10.0
 
 
