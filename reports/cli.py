@@ -18,8 +18,10 @@ from rich.table import Table
 
 from cases import CATALOG, InputError, resolve_case, scene_to_toml
 from comparators import ENGINES, get_engine, run
+from comparators.bench import BENCH_DURATION_S, MIN_REPEATS
 from comparators.metrics import summarize
 from comparators.parity import ParityError
+from comparators.trajectory import atomic_path
 
 EXIT_BAD_INPUT = 2
 EXIT_PARITY = 3  # an engine's model is not the scene: a bug in an adapter, not in the input
@@ -36,15 +38,24 @@ def _number(text: str) -> float:
     return value
 
 
-def _count(text: str) -> int:
-    """argparse type: a whole number >= 1."""
+def _whole(text: str, least: int) -> int:
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a number >= 1, got {text!r}")
+    if value < least:
+        raise argparse.ArgumentTypeError(f"expected a number >= {least}, got {text!r}")
     return value
+
+
+def _count(text: str) -> int:
+    """argparse type: a whole number >= 1."""
+    return _whole(text, 1)
+
+
+def _repeats(text: str) -> int:
+    """argparse type: a whole number >= MIN_REPEATS (a median with min and max)."""
+    return _whole(text, MIN_REPEATS)
 
 
 def _cmd_list(args, console: Console) -> None:
@@ -100,19 +111,80 @@ def _cmd_run(args, console: Console) -> None:
 DEFAULT_OUT = Path(__file__).resolve().parent / "out"
 
 
+def _scenes(names: list[str] | None) -> list:
+    """The named cases (catalog names or .toml files), or the whole catalog; names distinct."""
+    scenes = [resolve_case(c) for c in names] if names else list(CATALOG.values())
+    if len({s.name for s in scenes}) != len(scenes):
+        raise InputError("--cases: two cases have the same name: expected distinct cases")
+    return scenes
+
+
+def _engines(names: list[str] | None) -> list[str]:
+    """The named engines (checked), or every available one."""
+    engines = names or [name for name, engine in ENGINES.items() if not engine.missing]
+    for name in engines:
+        get_engine(name)
+    return engines
+
+
+def _rate(value: float) -> str:
+    return "n/a" if math.isnan(value) else f"{value:.3g}"
+
+
+THROUGHPUT_HEADERS = ("case", "engine", "integrator", "dt", "steps/s [min, max]", "vs MuJoCo Euler")
+
+
+def _throughput_table(table, title: str) -> Table:
+    """The bench table for the terminal: steps/s median [min, max], the ratio, the verdict."""
+    out = Table(title=title)
+    for col in THROUGHPUT_HEADERS:
+        out.add_column(col, justify="left" if col in ("case", "engine", "integrator") else "right")
+    out.add_column("verdict", overflow="fold")
+    for row in table.itertuples():
+        rate = _rate(row.steps_per_s)
+        if not math.isnan(row.steps_per_s):
+            rate += f" [{_rate(row.steps_per_s_min)}, {_rate(row.steps_per_s_max)}]"
+        ratio = _rate(row.ratio_vs_mujoco_euler)
+        out.add_row(row.case, row.engine, row.integrator, f"{row.dt:g}", rate, ratio, row.verdict)
+    return out
+
+
+def _cmd_bench(args, console: Console) -> None:
+    from comparators.bench import bench, plan_bench
+    from comparators.sweep import warm_up
+    from reports.plots import plot_throughput
+
+    out = Path(args.out) if args.out else None
+    if out is not None:
+        if out.suffix.lower() != ".csv":
+            raise InputError(f"--out {args.out!r}: expected a file name ending in .csv")
+        if not out.parent.is_dir():
+            raise InputError(f"--out {args.out!r}: directory {str(out.parent)!r} missing")
+    scenes = _scenes(args.cases)
+    engines = _engines(args.engines)
+    plan_bench(scenes, engines, args.dt, args.duration)  # bad dt or duration: before any run
+    start = time.perf_counter()
+    with console.status("compiling the reference simulator", spinner="dots"):
+        warm_up(engines)
+    table = bench(scenes, engines, args.dt, args.duration, args.repeats)
+    console.print(_throughput_table(table, "stepping throughput (steps/s, stepping only)"))
+    if out is not None:
+        with atomic_path(out) as tmp:
+            table.to_csv(tmp, index=False)
+        figure = plot_throughput(table, out.with_suffix(".png"))
+        console.print(f"wrote {out}")
+        console.print(f"wrote {figure}")
+    console.print(f"{len(table)} rows in {time.perf_counter() - start:.1f} s")
+
+
 def _cmd_report(args, console: Console) -> None:
     from comparators.cache import ResultsCache
     from comparators.sweep import DaskExecutor, LocalExecutor, plan, run_sweep, warm_up
     from reports.report import write_report
 
     start = time.perf_counter()
-    scenes = [resolve_case(c) for c in args.cases] if args.cases else list(CATALOG.values())
-    if len({s.name for s in scenes}) != len(scenes):
-        raise InputError("--cases: two cases have the same name: expected distinct cases")
-    available = [name for name, engine in ENGINES.items() if not engine.missing]
-    engines = args.engines or available
-    for name in engines:
-        get_engine(name)
+    scenes = _scenes(args.cases)
+    engines = _engines(args.engines)
     if args.executor == "dask":
         if not args.scheduler:
             raise InputError("--executor dask: expected --scheduler ADDRESS (e.g. tcp://host:8786)")
@@ -163,6 +235,24 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument(
         "--jobs", type=_count, default=os.cpu_count() or 1, help="local worker processes"
     )
+    ben = sub.add_parser("bench", help="steps/s of case x engine x integrator, side by side")
+    ben.add_argument("--cases", nargs="+", help="catalog names or .toml files (default: catalog)")
+    ben.add_argument("--engines", nargs="+", help="engine names (default: every available one)")
+    ben.add_argument(
+        "--dt", type=_number, nargs="+", help="time step(s) in s (default: each case's own)"
+    )
+    ben.add_argument(
+        "--duration",
+        type=_number,
+        help=f"simulated time per run in s (default: the case's, at most {BENCH_DURATION_S:g})",
+    )
+    ben.add_argument(
+        "--repeats",
+        type=_repeats,
+        default=MIN_REPEATS,
+        help=f"timed repeats per run, at least {MIN_REPEATS} (default {MIN_REPEATS})",
+    )
+    ben.add_argument("--out", help="write the table to FILE.csv and its plot to FILE.png")
     return parser
 
 
@@ -172,6 +262,7 @@ COMMANDS = {
     "show": _cmd_show,
     "run": _cmd_run,
     "report": _cmd_report,
+    "bench": _cmd_bench,
 }
 
 

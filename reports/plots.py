@@ -1,13 +1,16 @@
-"""The report's figures, one PNG per case and kind, 800 px wide.
+"""The report's figures, one PNG per case and kind, 800 px wide, and the throughput figure of
+all cases (the report's and `rigidbench bench`'s).
 
 Every figure colours a run by its engine and marks it (marker and line style) by its integrator,
 the same in every figure (`run_style`). Figures are `matplotlib.figure.Figure` objects rendered
 by Agg, never pyplot's: nothing is registered globally, so nothing stays open after saving.
-Inputs are the rows of one case from a sweep's results (`comparators.sweep.RESULT_COLUMNS`).
+Inputs are the rows of one case from a sweep's results (`comparators.sweep.RESULT_COLUMNS`), or
+for throughput a table with `comparators.bench.BENCH_COLUMNS`.
 """
 
 from __future__ import annotations
 
+import textwrap
 import zlib
 from pathlib import Path
 
@@ -264,4 +267,63 @@ def plot_stability(runs: pd.DataFrame, path: Path) -> Path:
         for name, colour in VERDICT_COLOURS.items()
     ]
     _legend_below(fig, handles=handles, ncols=len(handles), title="verdict", title_fontsize=8)
+    return _save(fig, path)
+
+
+THROUGHPUT_ROW_IN = 0.55  # inches per case row: room for one marker per engine/integrator
+NOTE_WIDTH = 120  # characters per line of 7-point text across the 800 px figure
+
+
+def plot_throughput(table: pd.DataFrame, path: Path, title: str | None = None) -> Path:
+    """Steps/s (log x, median with a [min, max] bar) and its ratio to MuJoCo Euler (log x, 1
+    marked) per case (rows, and dt when several) and engine/integrator (markers, offset within
+    a row), from a throughput table (`comparators.bench.BENCH_COLUMNS`). Runs without a
+    timing are left out and listed under the figure."""
+    rows = list(dict.fromkeys(zip(table["case"], table["dt"], strict=True)))
+    several_dt = table.groupby("case")["dt"].nunique().max() > 1
+    labels = [f"{case} (dt {dt:g})" if several_dt else case for case, dt in rows]
+    pairs = sorted(
+        dict.fromkeys(zip(table["engine"], table["integrator"], strict=True)), key=pair_rank
+    )
+    fig = Figure(
+        figsize=(WIDTH_IN, 1.6 + THROUGHPUT_ROW_IN * len(rows)), dpi=DPI, layout="constrained"
+    )
+    ax_rate, ax_ratio = fig.subplots(1, 2, sharey=True, width_ratios=(3, 2))
+    spacing = 0.8 / max(1, len(pairs))
+    timed = table[np.isfinite(table["steps_per_s"].to_numpy(float))]
+    for k, (engine, integrator) in enumerate(pairs):
+        own = timed[(timed["engine"] == engine) & (timed["integrator"] == integrator)]
+        if own.empty:
+            continue
+        y = np.array([rows.index(r) for r in zip(own["case"], own["dt"], strict=True)])
+        y = y + (k - (len(pairs) - 1) / 2) * spacing
+        rate = own["steps_per_s"].to_numpy(float)
+        low = np.nan_to_num(rate - own["steps_per_s_min"].to_numpy(float))
+        high = np.nan_to_num(own["steps_per_s_max"].to_numpy(float) - rate)
+        style = run_style(engine, integrator) | {"linestyle": "none", "markersize": 4}
+        label = f"{engine} {integrator}"
+        ax_rate.errorbar(rate, y, xerr=(low, high), label=label, elinewidth=0.8, **style)
+        ax_ratio.plot(own["ratio_vs_mujoco_euler"], y, **style)
+    ax_ratio.axvline(1.0, color="grey", linewidth=0.8, linestyle="--")
+    for ax, column in ((ax_rate, "steps_per_s"), (ax_ratio, "ratio_vs_mujoco_euler")):
+        ax.set_xscale("log")
+        ax.grid(True, which="major", axis="x", alpha=0.3)
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        values = timed[column].to_numpy(float)
+        values = values[np.isfinite(values) & (values > 0)]
+        if len(values) and np.log10(values.max() / values.min()) < SHORT_RANGE:
+            ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+            ax.xaxis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+    ax_rate.set_yticks(range(len(rows)), labels, fontsize=8)
+    ax_rate.set_ylim(len(rows) - 0.5, -0.5)  # first case on top
+    ax_rate.set_xlabel("steps/s, stepping only\n(median, bar: min to max)")
+    ax_ratio.set_xlabel("ratio to MuJoCo Euler\n(same case and dt)")
+    fig.suptitle(title or "stepping throughput (higher is faster)", fontsize=10)
+    untimed = table[~np.isfinite(table["steps_per_s"].to_numpy(float))]
+    note = {}
+    if len(untimed):
+        listed = ", ".join(f"{r.case} {r.engine} {r.integrator}" for r in untimed.itertuples())
+        text = textwrap.fill(f"not timed (failed or diverged): {listed}", NOTE_WIDTH)
+        note = {"title": text, "title_fontsize": 7}
+    _legend_below(fig, ncols=4, **note)
     return _save(fig, path)

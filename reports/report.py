@@ -23,6 +23,7 @@ import markdown
 import numpy as np
 import pandas as pd
 
+from comparators.bench import BASELINE, throughput_from_results
 from comparators.engine import ENGINES
 from comparators.outcomes import ENERGY_GROWTH_LIMIT, FINAL_FRACTION, FINAL_WINDOW_S, JITTER_SPEED
 from comparators.sweep import OUTCOMES_COLUMNS, RESULT_COLUMNS, SweepResult
@@ -228,7 +229,8 @@ def _header(result: SweepResult, command: str) -> list[str]:
         f"The sweep took {result.elapsed_s:.3g} s: {runs} runs, {result.computed} computed now "
         f"and {result.cached} taken from the results cache; executor: {_escape(result.executor)}.",
         "",
-        "Sections: how the timings were measured; the catalog; per case its metrics, drift over "
+        "Sections: how the timings were measured; throughput; the catalog; per case its "
+        "metrics, drift over "
         "time, convergence in dt, work-precision, stability map and measured outcomes; the "
         "largest stable dt; contact validation against closed forms; cost to reach a tolerance; "
         "the parity manifest; machine and versions. All numbers are in `results.csv` "
@@ -255,6 +257,58 @@ def _timing(results: pd.DataFrame) -> list[str]:
         "",
         markdown_table(setup),
     ]
+
+
+THROUGHPUT = "throughput"  # the figure's kind, and its key (None, THROUGHPUT) in `figures`
+
+
+def _throughput_cell(row) -> str:
+    """ "steps/s (ratio to the baseline)", or the verdict of a run without a timing."""
+    if _missing(row.steps_per_s):
+        return "failed" if str(row.verdict).startswith("failed") else _text(row.verdict)
+    ratio = MISSING if _missing(row.ratio_vs_mujoco_euler) else f"{row.ratio_vs_mujoco_euler:.2f}"
+    return f"{row.steps_per_s:.3g} ({ratio})"
+
+
+def _throughput(result: SweepResult, figures: dict, out: Path) -> list[str]:
+    table = throughput_from_results(result.results, result.scenes)
+    engine, integrator = BASELINE
+    lines = [
+        "## Throughput",
+        "",
+        "How to read: per case at its default dt (rows) and engine/integrator (columns), steps "
+        "per second of stepping from this sweep's timings (medians, measured as above; higher "
+        f"is faster), in parentheses its ratio to {engine} {integrator} on the same case and dt; "
+        "the figure adds each run's [min, max] over its repeats. Runs went through the "
+        "executor's workers, which share the machine; `rigidbench bench` times the same side "
+        "by side in one process, at least 5 repeats each.",
+        "",
+    ]
+    if table.empty:
+        return [*lines, "No run at a case's default dt."]
+    path = figures.get((None, THROUGHPUT))
+    if path is not None:
+        lines += [f"![stepping throughput]({path.relative_to(out).as_posix()})", ""]
+    table = table.assign(
+        pair=[_pair_label(r.engine, r.integrator) for r in table.itertuples()],
+        cell=[_throughput_cell(r) for r in table.itertuples()],
+    )
+    cells = table.pivot(index="case", columns="pair", values="cell")
+    cells = cells.reindex(index=list(dict.fromkeys(table["case"])))
+    pairs = dict.fromkeys(zip(table["engine"], table["integrator"], strict=True))
+    cells = cells.reindex(columns=[_pair_label(*p) for p in sorted(pairs, key=plots.pair_rank)])
+    cells = cells.fillna(MISSING)
+    return [*lines, markdown_table(cells.reset_index(), {c: str for c in cells.columns})]
+
+
+def write_throughput_figure(result: SweepResult, out: Path) -> dict[tuple, Path]:
+    """figures/throughput.png by (None, THROUGHPUT); none when no run is at a default dt."""
+    table = throughput_from_results(result.results, result.scenes)
+    if table.empty:
+        return {}
+    title = "stepping throughput at each case's default dt (higher is faster)"
+    path = plots.plot_throughput(table, out / FIGURES / f"{THROUGHPUT}.png", title)
+    return {(None, THROUGHPUT): path}
 
 
 def _catalog(result: SweepResult) -> list[str]:
@@ -720,7 +774,8 @@ def render_markdown(
     result: SweepResult, command: str, fits: pd.DataFrame, figures: dict, out: Path
 ) -> str:
     """report.md's text; `figures` by (case, kind), paths under `out`."""
-    parts = [_header(result, command), _timing(result.results), _catalog(result)]
+    parts = [_header(result, command), _timing(result.results)]
+    parts += [_throughput(result, figures, out), _catalog(result)]
     parts += [_case(result, case, fits, figures, out) for case in result.scenes]
     parts += [_largest_stable(result), _contact_validation(result)]
     parts += [_cost(result.results), _parity(result), _versions(result)]
@@ -741,7 +796,7 @@ def write_report(result: SweepResult, out: Path, command: str) -> dict[str, Path
     written = write_results(result.results, out)
     written |= write_outcomes(result.outcomes, out)
     fits = fit_orders(result.results, expected_orders(result))
-    figures = write_figures(result, fits, out)
+    figures = write_figures(result, fits, out) | write_throughput_figure(result, out)
     text = render_markdown(result, command, fits, figures, out)
     written["report.md"] = _write_text(out / "report.md", text)
     written["index.html"] = _write_text(out / "index.html", render_html(text))

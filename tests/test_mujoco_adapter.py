@@ -281,3 +281,39 @@ def test_run_meta_carries_the_manifest_and_the_readback():
     assert cube["mass"] == body.mass
     np.testing.assert_allclose(cube["x"], body.com, rtol=0, atol=FRAME_ATOL)
     np.testing.assert_allclose(cube["w"], body.angular_velocity, rtol=0, atol=OMEGA0_ATOL)
+
+
+def _disable_bits(names) -> int:
+    bits = 0
+    for name in names:
+        bits |= int(getattr(mujoco.mjtDisableBit, f"mjDSBL_{name.upper()}"))
+    return bits
+
+
+@pytest.mark.parametrize("integrator", mj.INTEGRATORS)
+@pytest.mark.parametrize("scene", [CATALOG["tumbling_box"], CATALOG["dropped_cube"], head_on(0.5)])
+def test_skipping_unused_stages_changes_nothing(scene, integrator):
+    """The stages the adapter disables (nothing in any scene for them to act on, and the
+    constraint solver without contact) give bitwise the same states when switched back on."""
+    skipped = mj.UNUSED_STAGES + (() if scene.has_contact else ("constraint",))
+    bits = _disable_bits(skipped)
+    fast = mj.build(scene, integrator, scene.dt)
+    assert fast[0].opt.disableflags & bits == bits
+    full = mj.build(scene, integrator, scene.dt)
+    full[0].opt.disableflags &= ~bits
+    _, fast_states = mj.step_rollout(*fast, 200, 1)
+    _, full_states = mj.step_rollout(*full, 200, 1)
+    np.testing.assert_array_equal(fast_states, full_states)
+
+
+def test_profiling_timer_is_off_while_stepping_only():
+    """rollout steps without MuJoCo's profiling clock (the steps are counted, not timed); the
+    bindings' clock is back afterwards."""
+    if mj._timer_callback() is None:
+        pytest.skip("libmujoco's mjcb_time cannot be reached here: the timer stays on")
+    model, data = mj.build(CATALOG["free_spin_cube"], "Euler", 0.01)
+    step = int(mujoco.mjtTimer.mjTIMER_STEP)
+    mj.step_rollout(model, data, 50, 10)
+    assert data.timer[step].number == 50 and data.timer[step].duration == 0.0
+    mujoco.mj_step(model, data)
+    assert data.timer[step].number == 51 and data.timer[step].duration > 0.0

@@ -13,6 +13,7 @@ import pytest
 
 from cases import CATALOG
 from comparators import ENGINES, run
+from comparators.bench import BENCH_COLUMNS, throughput_from_results
 from comparators.metrics import summarize
 from comparators.outcomes import outcomes
 from comparators.sweep import OUTCOMES_COLUMNS, RESULT_COLUMNS, SweepResult
@@ -191,7 +192,8 @@ def test_report_files(sweep, report):
         assert written[name] == out / name and (out / name).is_file()
     figures = [name for name in written if name.startswith("figures/")]
     kinds = ("drift", "convergence", "work_precision", "stability")
-    assert sorted(figures) == sorted(f"figures/tumbling_box_{kind}.png" for kind in kinds)
+    expected = [f"figures/tumbling_box_{kind}.png" for kind in kinds] + ["figures/throughput.png"]
+    assert sorted(figures) == sorted(expected)
     assert all((out / name).stat().st_size > 10_000 for name in figures)
     assert not [p.name for p in out.iterdir() if p.name.startswith(".")], "temporary files left"
 
@@ -216,8 +218,27 @@ def test_report_text(sweep, report):
         assert name in text
     assert missing_references(out / "index.html") == []
     html = (out / "index.html").read_text()
-    assert html.count("<img") == 4 and html.count("<table>") >= 5
+    assert html.count("<img") == 5 and html.count("<table>") >= 6
     assert 'style="text-align: right;"' in html  # numbers right-aligned
+
+
+def test_throughput_at_the_default_dt(sweep, report):
+    """The sweep's own timings as the bench's table: one row per engine/integrator at the
+    case's default dt, min <= median <= max, the MuJoCo Euler ratio 1; and as a section."""
+    table = throughput_from_results(sweep.results, sweep.scenes)
+    assert list(table.columns) == BENCH_COLUMNS
+    assert len(table) == len(PAIRS) and (table["dt"] == SCENE.dt).all()
+    rate = table["steps_per_s"]
+    assert (table["steps_per_s_min"] <= rate).all() and (rate <= table["steps_per_s_max"]).all()
+    base = table[(table["engine"] == "mujoco") & (table["integrator"] == "Euler")]
+    assert base["ratio_vs_mujoco_euler"].tolist() == [1.0]
+    out, _ = report
+    section = (out / "report.md").read_text().split("## Throughput")[1].split("\n## ")[0]
+    assert "figures/throughput.png" in section
+    header = next(line for line in section.splitlines() if line.startswith("| case"))
+    row = next(line for line in section.splitlines() if line.startswith(r"| tumbling\_box"))
+    cells = {h.strip(): c.strip() for h, c in zip(header.split("|"), row.split("|"), strict=True)}
+    assert cells["mujoco Euler"].endswith("(1.00)")  # MuJoCo Euler against itself
 
 
 def test_missing_references_finds_a_missing_figure(tmp_path):

@@ -1,0 +1,267 @@
+"""Stepping throughput: every case x engine x integrator x dt timed side by side in one process.
+
+`bench` measures steps/s through `comparators.engine.run`, the path the report takes (model
+built from the scene, trajectory recorded at the scene's sample interval, stepping timed apart
+from model building as `wall_s`). Per case and dt, every engine/integrator runs once as warm-up
+(its `setup_s` is reported, its trajectory gives the verdict), then REPEATS timed repeats go
+round-robin over the engines/integrators, each round starting one further along, so that
+machine load during the bench falls on all of them alike. steps/s is the median over the
+repeats of steps / wall_s, with the min and max beside it. Each run simulates the case's
+duration capped at BENCH_DURATION_S (10 s: 1000 steps at dt 0.01), or a given duration.
+
+`throughput_from_results` makes the same table from a sweep's results (`comparators.sweep`),
+for the report.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from cases.errors import InputError
+from cases.scene import Scene
+from comparators.engine import ENGINES, get_engine, run
+from comparators.outcomes import verdict
+from comparators.parity import ParityError
+from comparators.trajectory import Trajectory
+
+BENCH_COLUMNS = [
+    "case",
+    "engine",
+    "integrator",
+    "dt",
+    "duration",  # simulated seconds per run
+    "steps",
+    "repeats",  # timed repeats that ran
+    "steps_per_s",  # median over repeats of steps / wall_s
+    "steps_per_s_min",
+    "steps_per_s_max",
+    "setup_s",  # model building (and compilation) of the warm-up run
+    "ratio_vs_mujoco_euler",
+    "verdict",  # of the warm-up run: "ok", "diverged", ... or "failed: <reason>"
+]
+# Every steps/s is compared with MuJoCo's Euler at the same case and dt.
+BASELINE = ("mujoco", "Euler")
+# The architecture's timing rule: a median with min and max needs at least this many repeats.
+MIN_REPEATS = 5
+REPEATS = MIN_REPEATS
+# Simulated seconds per run at most (unless a duration is given): 1000 steps at dt 0.01, so
+# every run takes enough steps to time and the long cases (seed_cube's 100 s) no more than the
+# others. Measured: the slowest runs (the reference's contact solver at 6e3 to 1e4 steps/s,
+# e.g. bounce_e0.8's 6000 steps at dt 0.001) take about 1 s, a free body on MuJoCo about 1 ms,
+# and the whole catalog (180 rows, 5 repeats) 2.5 minutes on this shared 2-core machine.
+BENCH_DURATION_S = 10.0
+
+
+@dataclass(frozen=True)
+class BenchRun:
+    """One engine/integrator on one case at one dt, for `duration` simulated seconds."""
+
+    scene: Scene
+    engine: str
+    integrator: str
+    dt: float
+    duration: float
+
+    @property
+    def label(self) -> str:
+        return f"{self.scene.name}/{self.engine}/{self.integrator}/dt={self.dt:g}"
+
+
+def bench_duration(scene: Scene, duration: float | None = None) -> float:
+    """Simulated seconds per run: `duration` when given, else the scene's capped at
+    BENCH_DURATION_S."""
+    return duration if duration is not None else min(scene.duration, BENCH_DURATION_S)
+
+
+def plan_bench(
+    scenes: list[Scene],
+    engines: list[str],
+    dts: Iterable[float] | None = None,
+    duration: float | None = None,
+) -> list[list[BenchRun]]:
+    """The runs, one block per case and dt, each listing every engine/integrator in registry
+    order. `dts` None: each scene's own dt. Bad names, dt or duration raise InputError."""
+    for name in engines:
+        get_engine(name)
+    dts = None if dts is None else list(dts)
+    for value, what in [*((dt, "dt") for dt in dts or ()), (duration, "duration")]:
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise InputError(f"{what}: expected a finite number > 0, got {value!r}")
+    blocks = []
+    for scene in scenes:
+        length = bench_duration(scene, duration)
+        for dt in dts or [scene.dt]:
+            if dt > length:
+                raise InputError(
+                    f"dt {dt:g} is longer than the {length:g} s simulated for {scene.name!r}: "
+                    "expected dt <= duration"
+                )
+            blocks.append(
+                [
+                    BenchRun(scene, name, integrator, float(dt), float(length))
+                    for name in engines
+                    for integrator in ENGINES[name].integrators
+                ]
+            )
+    return blocks
+
+
+def _attempt(spec: BenchRun) -> tuple[Trajectory | None, str | None]:
+    """Run `spec`: the trajectory, or None and why it failed (never raises)."""
+    try:
+        traj = run(spec.scene, spec.engine, spec.integrator, dt=spec.dt, duration=spec.duration)
+        return traj, None
+    except ParityError as exc:
+        return None, f"parity: {exc}"
+    except Exception as exc:  # noqa: BLE001  (reported in the table, never raised)
+        return None, f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
+
+
+def _row(spec: BenchRun) -> dict:
+    row = dict.fromkeys(BENCH_COLUMNS, np.nan)
+    row.update(
+        case=spec.scene.name,
+        engine=spec.engine,
+        integrator=spec.integrator,
+        dt=spec.dt,
+        duration=spec.duration,
+        repeats=0,
+    )
+    return row
+
+
+# Verdicts whose runs are timed: the architecture counts only finite, non-diverged runs.
+TIMED_VERDICTS = ("ok", "tunnelled", "jitter")
+
+
+def bench(
+    scenes: list[Scene],
+    engines: list[str],
+    dts: Iterable[float] | None = None,
+    duration: float | None = None,
+    repeats: int = REPEATS,
+    progress: bool = True,
+) -> pd.DataFrame:
+    """Steps/s of every scene x engine x integrator x dt, one row each, columns BENCH_COLUMNS.
+
+    dts: None runs each scene at its own dt; duration: None simulates each scene's duration
+    capped at BENCH_DURATION_S. Each run goes through `comparators.engine.run` with the
+    trajectory recorded. Per case and dt: one warm-up run per engine/integrator (setup_s, the
+    verdict), then `repeats` (>= MIN_REPEATS) timed rounds over the engines/integrators whose
+    warm-up gave a finite, non-diverged run. A failed or diverged run never raises: its row has
+    steps/s NaN and says why in `verdict`; a repeat that fails turns its row into that failure.
+    Call `comparators.sweep.warm_up` first to compile the reference simulator outside the bench.
+    """
+    if repeats < MIN_REPEATS:
+        raise InputError(f"repeats: expected at least {MIN_REPEATS}, got {repeats}")
+    blocks = plan_bench(scenes, engines, dts, duration)
+    rows = []
+    total = sum(len(block) for block in blocks) * (1 + repeats)
+    columns = [
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+    ]
+    with Progress(*columns, disable=not progress, transient=False) as bar:
+        task = bar.add_task("bench", total=total)
+
+        def advance(label: str) -> None:
+            bar.update(task, advance=1, description=label)
+
+        for block in blocks:
+            rows += _bench_block(block, repeats, advance)
+    table = pd.DataFrame(rows, columns=BENCH_COLUMNS)
+    return with_ratio(table)
+
+
+def _bench_block(block: list[BenchRun], repeats: int, advance) -> list[dict]:
+    """One case and dt: warm-ups, then `repeats` rotated rounds; one row per spec."""
+    rows = [_row(spec) for spec in block]
+    walls: list[list[float]] = [[] for _ in block]
+    timed = []
+    for k, spec in enumerate(block):
+        traj, error = _attempt(spec)
+        advance(spec.label)
+        if traj is None:
+            rows[k]["verdict"] = f"failed: {error}"
+            continue
+        rows[k].update(steps=traj.meta.steps, setup_s=traj.meta.setup_s)
+        rows[k]["verdict"] = verdict(traj, spec.scene)
+        if rows[k]["verdict"] in TIMED_VERDICTS:
+            timed.append(k)
+    skipped = (len(block) - len(timed)) * repeats
+    if skipped:
+        for _ in range(skipped):
+            advance("skipped")
+    for round_ in range(repeats):
+        shift = round_ % max(1, len(timed))
+        for k in timed[shift:] + timed[:shift]:
+            if rows[k]["verdict"].startswith("failed"):
+                advance(block[k].label)
+                continue
+            traj, error = _attempt(block[k])
+            advance(block[k].label)
+            if traj is None:
+                rows[k]["verdict"] = f"failed: {error}"
+            else:
+                walls[k].append(traj.meta.wall_s)
+    for k in timed:
+        if rows[k]["verdict"].startswith("failed"):
+            continue
+        rates = rows[k]["steps"] / np.asarray(walls[k])
+        rows[k].update(
+            repeats=len(rates),
+            steps_per_s=float(np.median(rates)),
+            steps_per_s_min=float(rates.min()),
+            steps_per_s_max=float(rates.max()),
+        )
+    return rows
+
+
+def with_ratio(table: pd.DataFrame) -> pd.DataFrame:
+    """`table` with ratio_vs_mujoco_euler: steps_per_s over that of BASELINE at the same case
+    and dt (NaN where the baseline has no valid timing)."""
+    engine, integrator = BASELINE
+    is_base = (table["engine"] == engine) & (table["integrator"] == integrator)
+    base = table[is_base].drop_duplicates(["case", "dt"]).set_index(["case", "dt"])
+    keys = pd.MultiIndex.from_frame(table[["case", "dt"]])
+    reference = base["steps_per_s"].reindex(keys).to_numpy(dtype=float)
+    return table.assign(ratio_vs_mujoco_euler=table["steps_per_s"].to_numpy(float) / reference)
+
+
+def throughput_from_results(results: pd.DataFrame, scenes: dict[str, Scene]) -> pd.DataFrame:
+    """The bench table (BENCH_COLUMNS) from a sweep's results (`comparators.sweep.RESULT_COLUMNS`)
+    at each case's default dt: its median steps/s, min and max from wall_max_s and wall_min_s,
+    NaN where the run failed or diverged."""
+    default = results["dt"].to_numpy(float) == results["case"].map(
+        {name: scene.dt for name, scene in scenes.items()}
+    ).to_numpy(float)
+    runs = results[default].reset_index(drop=True)
+    valid = runs["verdict"].isin(TIMED_VERDICTS).to_numpy()
+    steps = runs["steps"].to_numpy(float)
+    table = pd.DataFrame(
+        {
+            "case": runs["case"],
+            "engine": runs["engine"],
+            "integrator": runs["integrator"],
+            "dt": runs["dt"],
+            "duration": runs["duration"],
+            "steps": runs["steps"],
+            "repeats": runs["repeats"],
+            "steps_per_s": np.where(valid, runs["steps_per_s"], np.nan),
+            "steps_per_s_min": np.where(valid, steps / runs["wall_max_s"], np.nan),
+            "steps_per_s_max": np.where(valid, steps / runs["wall_min_s"], np.nan),
+            "setup_s": runs["setup_s"],
+            "ratio_vs_mujoco_euler": np.nan,
+            "verdict": runs["verdict"],
+        },
+        columns=BENCH_COLUMNS,
+    )
+    return with_ratio(table)
