@@ -198,9 +198,11 @@ def _bin(model, x, reach, cells, dims, keys):
     for k in range(3):
         lo, hi = x[0, k], x[0, k]
         for b in range(nb):
+            if not math.isfinite(x[b, k]):
+                return False
             lo, hi = min(lo, x[b, k]), max(hi, x[b, k])
         span = (hi - lo) / cell
-        if not span < 2.0**20:  # NaN, inf, or more cells than an int64 key can number
+        if not span < 2.0**20:  # more cells than an int64 key can number
             return False
         dims[k] = int(span) + 1
         for b in range(nb):
