@@ -101,6 +101,7 @@ DEFAULT_OUT = Path(__file__).resolve().parent / "out"
 
 
 def _cmd_report(args, console: Console) -> None:
+    from comparators import scaling
     from comparators.cache import ResultsCache
     from comparators.sweep import DaskExecutor, LocalExecutor, plan, run_sweep, warm_up
     from reports.report import write_report
@@ -125,7 +126,21 @@ def _cmd_report(args, console: Console) -> None:
         warm_up(engines)
     specs = plan(scenes, engines, quick=args.quick)
     result = run_sweep(specs, cache, executor)
-    files = write_report(result, out, command=" ".join(["rigidbench", *sys.argv[1:]]))
+    table = None
+    if args.scaling:  # in this process, after the sweep's workers have gone: nothing competes
+        counts = scaling.QUICK_COUNTS if args.quick else scaling.FULL_COUNTS
+        windows = scaling.QUICK_WINDOWS if args.quick else scaling.FULL_WINDOWS
+        started = time.perf_counter()
+        with console.status("scaling", spinner="dots") as status:
+            table = scaling.measure_scaling(
+                counts, engines, windows, progress=lambda label: status.update(f"scaling: {label}")
+            )
+        console.print(
+            f"scaling: cube_rain_N for N in {', '.join(map(str, counts))}, "
+            f"{len(table)} measurements in {time.perf_counter() - started:.1f} s"
+        )
+    command = " ".join(["rigidbench", *sys.argv[1:]])
+    files = write_report(result, out, command=command, scaling=table)
     failed = result.results["verdict"].str.startswith("failed").sum()
     diverged = (result.results["verdict"] == "diverged").sum()
     console.print(
@@ -155,7 +170,17 @@ def build_parser() -> argparse.ArgumentParser:
     rep = sub.add_parser("report", help="sweep case x engine x integrator x dt; write the report")
     rep.add_argument("--cases", nargs="+", help="catalog names or .toml files (default: catalog)")
     rep.add_argument("--engines", nargs="+", help="engine names (default: every available one)")
-    rep.add_argument("--quick", action="store_true", help="a reduced dt sweep (3 steps per case)")
+    rep.add_argument(
+        "--quick",
+        action="store_true",
+        help="a reduced dt sweep (3 steps per case) and a reduced scaling measurement",
+    )
+    rep.add_argument(
+        "--scaling",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="measure the cost per step of cube_rain_N against N (default: on)",
+    )
     rep.add_argument("--out", default=str(DEFAULT_OUT), help=f"output directory ({DEFAULT_OUT})")
     rep.add_argument("--cache", help="results cache directory (default: OUT/cache)")
     rep.add_argument("--executor", choices=("local", "dask"), default="local")
