@@ -17,6 +17,7 @@ from rich.console import Console
 from rich.table import Table
 
 from cases import CATALOG, InputError, resolve_case, scene_to_toml
+from cases.catalog import CUBE_RAIN_MAX, CUBE_RAIN_PREFIX
 from comparators import ENGINES, get_engine, run
 from comparators.metrics import summarize
 from comparators.parity import ParityError
@@ -48,7 +49,8 @@ def _count(text: str) -> int:
 
 
 def _cmd_list(args, console: Console) -> None:
-    table = Table(title="rigidbench catalog", show_lines=False)
+    caption = f"also {CUBE_RAIN_PREFIX}N for any N from 1 to {CUBE_RAIN_MAX} (cube_rain_8 above)"
+    table = Table(title="rigidbench catalog", caption=caption, show_lines=False)
     for col in ("case", "tags", "models", "description"):
         table.add_column(col, overflow="fold")
     for scene in CATALOG.values():

@@ -81,6 +81,8 @@ def test_a_toml_path_named_like_a_member_is_read_as_a_file():
 
 
 def test_cli_runs_a_member_and_rejects_a_bad_n(capsys):
+    assert main(["list"]) == 0
+    assert f"cube_rain_N for any N from 1 to {CUBE_RAIN_MAX}" in capsys.readouterr().out
     assert main(["run", "cube_rain_3", "--engine", "reference", "--duration", "0.02"]) == 0
     assert "cube_rain_3" in capsys.readouterr().out
     assert main(["run", "cube_rain_0"]) == EXIT_BAD_INPUT
