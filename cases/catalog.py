@@ -423,8 +423,9 @@ CUBE_RAIN_REACH = CUBE_RAIN_EDGE * math.sqrt(3) / 2 + CUBE_RAIN_RADIUS
 # m between grid centres: two reaches are 1.27 m, so neighbours start at least 0.23 m apart and
 # the outer cubes 0.12 m from the walls, in any orientation.
 CUBE_RAIN_PITCH = 1.5
-# The grid is at most this many layers high and its footprint grows as sqrt(N): every N falls
-# about as far and lands on about as many cubes, so the work per body is alike across N.
+# The grid is at most this many layers high and its footprint grows as sqrt(N): from a few tens
+# of cubes on, every N falls as far and lands on about as many cubes, so the work per body is
+# alike; fewer make a lower, narrower pile (a lone cube touches only the floor).
 CUBE_RAIN_LAYERS = 4
 CUBE_RAIN_CLEARANCE = 0.5  # m from the floor to the lowest reach of the bottom layer
 # Bounds of the uniform random initial velocity (m/s) and angular velocity (rad/s, the seed's
@@ -502,16 +503,13 @@ def family_scene(name: str) -> Scene | None:
     if not name.startswith(CUBE_RAIN_PREFIX):
         return None
     text = name.removeprefix(CUBE_RAIN_PREFIX)
-    if not (text.isascii() and text.isdigit() and text == str(int(text))):
-        n = None
-    else:
-        n = int(text)
-    if n is None or not 1 <= n <= CUBE_RAIN_MAX:
+    canonical = text.isascii() and text.isdigit() and text == str(int(text))
+    if not (canonical and 1 <= int(text) <= CUBE_RAIN_MAX):
         raise InputError(
             f"case {name!r}: expected {CUBE_RAIN_PREFIX}N with N a whole number from 1 to "
             f"{CUBE_RAIN_MAX} (the number of cubes)"
         )
-    return cube_rain(n)
+    return cube_rain(int(text))
 
 
 CUBE_RAIN_REPRESENTATIVE = 8  # two layers of 2 x 2: cubes land on cubes, cheap in every sweep

@@ -17,7 +17,7 @@ from rich.console import Console
 from rich.table import Table
 
 from cases import CATALOG, InputError, resolve_case, scene_to_toml
-from cases.catalog import CUBE_RAIN_MAX, CUBE_RAIN_PREFIX
+from cases.catalog import CUBE_RAIN_MAX, CUBE_RAIN_PREFIX, CUBE_RAIN_REPRESENTATIVE
 from comparators import ENGINES, get_engine, run
 from comparators.metrics import summarize
 from comparators.parity import ParityError
@@ -49,7 +49,10 @@ def _count(text: str) -> int:
 
 
 def _cmd_list(args, console: Console) -> None:
-    caption = f"also {CUBE_RAIN_PREFIX}N for any N from 1 to {CUBE_RAIN_MAX} (cube_rain_8 above)"
+    caption = (
+        f"also {CUBE_RAIN_PREFIX}N for any N from 1 to {CUBE_RAIN_MAX} "
+        f"({CUBE_RAIN_PREFIX}{CUBE_RAIN_REPRESENTATIVE} above)"
+    )
     table = Table(title="rigidbench catalog", caption=caption, show_lines=False)
     for col in ("case", "tags", "models", "description"):
         table.add_column(col, overflow="fold")
@@ -129,7 +132,7 @@ def _cmd_report(args, console: Console) -> None:
     specs = plan(scenes, engines, quick=args.quick)
     result = run_sweep(specs, cache, executor)
     table = None
-    if args.scaling:  # in this process, after the sweep's workers have gone: nothing competes
+    if args.scaling:  # here, after the sweep: none of its workers competes for the cores
         counts = scaling.QUICK_COUNTS if args.quick else scaling.FULL_COUNTS
         windows = scaling.QUICK_WINDOWS if args.quick else scaling.FULL_WINDOWS
         started = time.perf_counter()
