@@ -36,7 +36,7 @@ FALL_STEPS = 10
 WHOLE_STEPS = 100
 FULL_WINDOWS = (FALL_STEPS, WHOLE_STEPS)
 QUICK_WINDOWS = (FALL_STEPS,)
-WARM_UP_STEPS = 1
+WARM_UP_STEPS = 1  # enough to load an engine's compiled code and libraries before timing
 # Runs of a few milliseconds vary by up to 3x between repeats on the shared 2-core machine
 # (PyBullet cube_rain_10 over 10 steps: 2.1 to 7.3 ms); the median of 5 ignores two outliers.
 REPEATS = 5
