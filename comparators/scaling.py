@@ -105,11 +105,10 @@ def measure_scaling(
 
     `engines` defaults to every available one; each runs its default integrator, or all of
     them with `all_integrators`. Each window is a number of steps from t = 0 at the scene's
-    dt. A run is repeated up to `repeats` times while its first run, setup and stepping, took
-    under REPEAT_BELOW_S (longer runs average scheduler noise within themselves, and each repeat
-    builds the model again: 2 to 6 s at N = 1000); each repeat runs every engine once, so machine
-    load falls on all of them alike. The verdict is that of the first repeat's trajectory.
-    `progress` is called with a label before every run.
+    dt. A run is repeated up to `repeats` times while one run takes under REPEAT_BELOW_S
+    (longer runs average scheduler noise within themselves); each repeat runs every engine once,
+    so machine load falls on all of them alike. The verdict is that of the first repeat's
+    trajectory. `progress` is called with a label before every run.
     """
     engines = [n for n, e in ENGINES.items() if not e.missing] if engines is None else engines
     pairs = _pairs(engines, all_integrators)
@@ -127,9 +126,8 @@ def measure_scaling(
             verdicts: dict[tuple, str] = {}
             for repeat in range(repeats):
                 for pair in pairs:
-                    if pair in verdicts and (
-                        verdicts[pair] != "ok" or walls[pair][0] + setups[pair][0] >= REPEAT_BELOW_S
-                    ):
+                    done = walls[pair]
+                    if pair in verdicts and (verdicts[pair] != "ok" or done[0] >= REPEAT_BELOW_S):
                         continue
                     report(f"{scene.name}, {steps} steps, {pair[0]} {pair[1]}, run {repeat + 1}")
                     traj, error = _timed(scene, *pair, steps)
@@ -138,7 +136,7 @@ def measure_scaling(
                         continue
                     if pair not in verdicts:
                         verdicts[pair] = verdict(traj, scene)
-                    walls[pair].append(traj.meta.wall_s)
+                    done.append(traj.meta.wall_s)
                     setups[pair].append(traj.meta.setup_s)
             for pair in pairs:
                 rows.append(_row(scene, pair, steps, walls[pair], setups[pair], verdicts[pair]))
