@@ -43,9 +43,12 @@ REPEATS = 5
 # Cost per body-step has stopped being flat at the first N where it exceeds this factor times
 # its smallest value over the smaller N (the plateau). The smallest value, not the first: a
 # fixed cost per step divided among few bodies makes the smallest N dearest per body. 2: the
-# medians of repeats still differ by tens of percent between runs of the measurement, so smaller
+# fastest repeats still differ by tens of percent between runs of the measurement, so smaller
 # factors would flag noise, and a doubled cost per body means the part growing faster than N
-# has caught up with the linear part.
+# has caught up with the linear part. The rule reads the fastest repeat (`wall_min_s`), not the
+# median: other processes only ever add time, and under a load of 2 to 3 on the 2 cores a burst
+# during the repeats of one N moved its median by up to 10x (MuJoCo cube_rain_10, 10 steps:
+# 1.3 to 13.5 ms), enough to end a plateau on its own.
 PLATEAU_FACTOR = 2.0
 
 SCALING_COLUMNS = [
@@ -68,7 +71,7 @@ PLATEAU_COLUMNS = [
     "engine",
     "integrator",
     "steps",
-    "plateau_cost_per_body_step_s",  # smallest cost per body-step before the plateau ends
+    "plateau_cost_per_body_step_s",  # smallest before the plateau ends, fastest repeats
     "plateau_n",  # the N where that smallest cost was measured
     "flat_up_to",  # the largest N before the plateau ends (or the largest N measured)
     "ends_at",  # the first N above PLATEAU_FACTOR times the plateau; NaN: flat throughout
@@ -173,17 +176,20 @@ def _row(scene, pair, steps, walls, setups, outcome) -> dict:
 def plateau_ends(table: pd.DataFrame, factor: float = PLATEAU_FACTOR) -> pd.DataFrame:
     """Per engine, integrator and window (steps) of a `measure_scaling` table, where cost per
     body-step stops being flat (`PLATEAU_COLUMNS`): the first N whose cost per body-step exceeds
-    `factor` times the smallest cost per body-step over the smaller N. Only valid runs (verdict
-    ok, finite cost) count; a group without any has NaN throughout."""
+    `factor` times the smallest cost per body-step over the smaller N, both from the fastest
+    repeat (`wall_min_s` / (steps N)). Only valid runs (verdict ok, finite time) count; a group
+    without any has NaN throughout."""
     rows = []
     keys = ["engine", "integrator", "steps"]
+    fastest = table["wall_min_s"] / (table["steps"] * table["n_bodies"])
+    table = table.assign(_fastest=fastest)
     for (engine, integrator, steps), own in table.groupby(keys, sort=False):
-        valid = own[(own["verdict"] == "ok") & np.isfinite(own["cost_per_body_step_s"])]
+        valid = own[(own["verdict"] == "ok") & np.isfinite(own["_fastest"])]
         valid = valid.sort_values("n_bodies")
         row = dict.fromkeys(PLATEAU_COLUMNS, np.nan)
         row.update(engine=engine, integrator=integrator, steps=steps)
         best_cost, best_n = np.inf, np.nan
-        for n, cost in zip(valid["n_bodies"], valid["cost_per_body_step_s"], strict=True):
+        for n, cost in zip(valid["n_bodies"], valid["_fastest"], strict=True):
             if cost > factor * best_cost:
                 row["ends_at"] = n
                 break

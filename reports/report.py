@@ -627,7 +627,7 @@ PLATEAU_HEADERS = {
     "engine": "engine",
     "integrator": "integrator",
     "steps": "steps",
-    "plateau_cost_per_body_step_s": "plateau (s per body-step)",
+    "plateau_cost_per_body_step_s": "plateau (s per body-step, fastest repeat)",
     "plateau_n": "at N",
     "flat_up_to": "flat up to N",
     "ends_at": "ends at N",
@@ -677,7 +677,8 @@ def _scaling(table: pd.DataFrame, figure: Path | None, out: Path) -> list[str]:
         "Where cost per body-step stops being flat: per engine and window, the plateau is the "
         "smallest cost per body-step over the smaller N, and it ends at the first N whose cost "
         f"per body-step exceeds {PLATEAU_FACTOR:g} times it ({MISSING}: flat up to the largest "
-        "N measured).",
+        "N measured). Both are read from the fastest repeat: other processes only ever add "
+        "time, and a burst of load must not end a plateau.",
         "",
         markdown_table(
             ends.rename(columns=PLATEAU_HEADERS),

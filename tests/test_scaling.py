@@ -131,12 +131,15 @@ def test_a_failing_run_is_a_row_not_an_exception(monkeypatch):
 
 
 def synthetic(engine: str, costs_per_body: dict[int, float], verdicts=None) -> pd.DataFrame:
-    """A measure_scaling table for one engine with the given cost per body-step by N."""
+    """A measure_scaling table for one engine whose fastest repeat costs `costs_per_body` per
+    body-step by N, and whose medians are 10 times that (a burst of load): the plateau reads
+    the fastest repeat."""
     rows = []
     for n, cost in costs_per_body.items():
         row = dict.fromkeys(SCALING_COLUMNS, np.nan)
         row |= {"engine": engine, "integrator": "x", "steps": 10, "n_bodies": n}
-        row |= {"cost_per_body_step_s": cost, "verdict": (verdicts or {}).get(n, "ok")}
+        row |= {"wall_min_s": cost * 10 * n, "cost_per_body_step_s": 10 * cost}
+        row |= {"verdict": (verdicts or {}).get(n, "ok")}
         rows.append(row)
     return pd.DataFrame(rows, columns=SCALING_COLUMNS)
 
@@ -164,6 +167,8 @@ def test_plateau_ends_where_cost_per_body_doubles():
     assert math.isnan(ends.loc["linear", "ends_at"]) and ends.loc["linear", "flat_up_to"] == 1000
     assert ends.loc["linear", "plateau_n"] == 1000
     assert ends.loc["linear", "plateau_cost_per_body_step_s"] == pytest.approx(1e-5 * 1.004)
+    noisy = synthetic("noisy", {1: 1e-5, 10: 1e-5}).assign(cost_per_body_step_s=[1e-5, 1e-4])
+    assert math.isnan(plateau_ends(noisy).loc[0, "ends_at"])  # a slow median, a fast minimum
     assert ends.loc["quadratic", ["flat_up_to", "ends_at", "plateau_n"]].tolist() == [100, 300, 1]
     assert ends.loc["broken", ["flat_up_to", "ends_at"]].tolist() == [10, 1000]
     assert ends.loc["dead"].drop(["integrator", "steps"]).isna().all()
