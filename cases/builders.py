@@ -64,6 +64,11 @@ def box_walls(lower=(0.0, 0.0, 0.0), upper=(10.0, 10.0, 10.0)) -> tuple[Plane, .
     return tuple(planes)
 
 
+def open_box(lower=(0.0, 0.0, 0.0), upper=(10.0, 10.0, 10.0)) -> tuple[Plane, ...]:
+    """`box_walls` without its ceiling: the floor z = lower[2] and four side walls, open above."""
+    return tuple(p for p in box_walls(lower, upper) if p.normal != (0.0, 0.0, -1.0))
+
+
 def floor(height: float = 0.0) -> Plane:
     """The plane z = height facing up."""
     return Plane(point=(0.0, 0.0, float(height)), normal=(0.0, 0.0, 1.0))

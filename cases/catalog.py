@@ -1,18 +1,22 @@
 """The built-in catalog: scenes registered by name with tags (dm_control's TaggedTasks idea).
 
-Tests and reports parametrize over `CATALOG`, so adding a case adds its tests.
+Tests and reports parametrize over `CATALOG`, so adding a case adds its tests. The `cube_rain`
+family (`cube_rain(n)`, at the end) is built for any N by name, `cube_rain_N` (`family_scene`);
+the catalog holds one small member.
 """
 
 import dataclasses
 import math
 from collections.abc import Callable
-from functools import partial
+from functools import cache, partial
 
 import numpy as np
 
 from cases import builders
+from cases.errors import InputError
 from cases.scene import Body, Contact, Expected, Scene
 from reference_sim.inertia import principal_frame
+from reference_sim.quaternion import quats_to_matrices
 
 CATALOG: dict[str, Scene] = {}
 
@@ -401,3 +405,112 @@ def incline(name: str, degrees: float) -> Scene:
 
 register(partial(incline, "incline", 35.0))
 register(partial(incline, "incline_stick", 20.0))
+
+
+# ---------------------------------------------------------------------------------------------
+# Scaling: the cube_rain family, N cubes raining into an open box (`comparators.scaling` times
+# it against N). Any `cube_rain_N` with 1 <= N <= CUBE_RAIN_MAX resolves by name.
+
+CUBE_RAIN_MAX = 1000
+CUBE_RAIN_PREFIX = "cube_rain_"
+CUBE_RAIN_EDGE = 0.5  # m, between the centres of a cube's corner particles
+# m: above edge / (2 sqrt 2) = 0.18 m, so a face's four particles close it: the face's centre is
+# 0.35 m from its corners, under two radii, and no particle of another cube passes through.
+CUBE_RAIN_RADIUS = 0.2
+CUBE_RAIN_PARTICLE_MASS = 1.0  # kg, the seed's
+# m: the farthest particle surface from a cube's centre, whatever its orientation.
+CUBE_RAIN_REACH = CUBE_RAIN_EDGE * math.sqrt(3) / 2 + CUBE_RAIN_RADIUS
+# m between grid centres: two reaches are 1.27 m, so neighbours start at least 0.23 m apart and
+# the outer cubes 0.12 m from the walls, in any orientation.
+CUBE_RAIN_PITCH = 1.5
+# The grid is at most this many layers high and its footprint grows as sqrt(N): from a few tens
+# of cubes on, every N falls as far and lands on about as many cubes, so the work per body is
+# alike; fewer make a lower, narrower pile (a lone cube touches only the floor).
+CUBE_RAIN_LAYERS = 4
+CUBE_RAIN_CLEARANCE = 0.5  # m from the floor to the lowest reach of the bottom layer
+# Bounds of the uniform random initial velocity (m/s) and angular velocity (rad/s, the seed's
+# 2 rad/s) components: enough that neighbours meet in the air and the pile is not symmetric.
+CUBE_RAIN_SPEED = 0.5
+CUBE_RAIN_SPIN = 2.0
+CUBE_RAIN_SEED = 7  # numpy's default_rng seed: one fixed pile for every N
+CUBE_RAIN_CONTACT = Contact(restitution=0.3, friction=0.5)
+# s between samples: what a verdict looks for (a non-finite state, runaway energy, a particle
+# behind a plane) persists once it happens, so 0.1 s samples still catch it; the suite's
+# per-body metrics (`comparators.metrics.body_arrays`) scan the whole table once per body, so
+# their cost grows as N x samples x N.
+CUBE_RAIN_SAMPLE_INTERVAL = 0.1
+
+
+@cache
+def cube_rain(n: int) -> Scene:
+    """`n` cubes of 8 particles on a grid at most CUBE_RAIN_LAYERS high, randomly oriented and
+    moving (CUBE_RAIN_SEED), dropped into an open box (floor z = 0 and four walls) around the
+    grid's footprint; 1 s at dt 0.01: the bottom layer lands after about 0.3 s, the top one
+    by the end."""
+    if not (isinstance(n, int) and 1 <= n <= CUBE_RAIN_MAX):
+        raise ValueError(f"cube_rain: expected a whole number of cubes from 1 to {CUBE_RAIN_MAX}")
+    side = math.ceil(math.sqrt(n / CUBE_RAIN_LAYERS))  # cubes along x and y
+    per_layer = side * side
+    width = side * CUBE_RAIN_PITCH
+    rng = np.random.default_rng(CUBE_RAIN_SEED)
+    quaternions = rng.normal(size=(n, 4))  # normalised: uniform over the rotations
+    rotations = quats_to_matrices(quaternions / np.linalg.norm(quaternions, axis=1)[:, None])
+    velocities = rng.uniform(-CUBE_RAIN_SPEED, CUBE_RAIN_SPEED, size=(n, 3))
+    spins = rng.uniform(-CUBE_RAIN_SPIN, CUBE_RAIN_SPIN, size=(n, 3))
+    cube = builders.box_corners((CUBE_RAIN_EDGE,) * 3, mass=CUBE_RAIN_PARTICLE_MASS)
+    bodies = []
+    for k in range(n):
+        layer, cell = divmod(k, per_layer)
+        row, column = divmod(cell, side)
+        centre = (
+            (column + 0.5) * CUBE_RAIN_PITCH,
+            (row + 0.5) * CUBE_RAIN_PITCH,
+            CUBE_RAIN_CLEARANCE + CUBE_RAIN_REACH + layer * CUBE_RAIN_PITCH,
+        )
+        rows = builders.shifted(builders.rotated(cube, rotations[k]), centre)
+        bodies.append(
+            Body(
+                name=f"cube{k}",
+                particle_radius=CUBE_RAIN_RADIUS,
+                particles=tuple(tuple(float(c) for c in row) for row in rows),
+                velocity=tuple(float(c) for c in velocities[k]),
+                angular_velocity=tuple(float(c) for c in spins[k]),
+            )
+        )
+    layers = math.ceil(n / per_layer)
+    return Scene(
+        name=f"{CUBE_RAIN_PREFIX}{n}",
+        description=f"{n} cube(s) of 8 particles (edge {CUBE_RAIN_EDGE:g} m, radius "
+        f"{CUBE_RAIN_RADIUS:g} m), randomly turned, moving and spinning, raining from a "
+        f"{side} x {side} x {layers} grid into an open {width:g} m box: cost per step against N.",
+        tags=("scaling", "contact", "gravity", *(("multibody",) if n > 1 else ())),
+        duration=1.0,
+        dt=0.01,
+        sample_interval=CUBE_RAIN_SAMPLE_INTERVAL,
+        gravity=GRAVITY,
+        contact=CUBE_RAIN_CONTACT,
+        planes=builders.open_box((0.0, 0.0, 0.0), (width, width, width)),
+        bodies=tuple(bodies),
+    )
+
+
+def family_scene(name: str) -> Scene | None:
+    """The scene called `name` in a family (`cube_rain_N`), None when `name` names no family.
+
+    Raises `InputError` for a family name whose N is not a whole number from 1 to
+    CUBE_RAIN_MAX, written without leading zeros.
+    """
+    if not name.startswith(CUBE_RAIN_PREFIX):
+        return None
+    text = name.removeprefix(CUBE_RAIN_PREFIX)
+    canonical = text.isascii() and text.isdigit() and text == str(int(text))
+    if not (canonical and 1 <= int(text) <= CUBE_RAIN_MAX):
+        raise InputError(
+            f"case {name!r}: expected {CUBE_RAIN_PREFIX}N with N a whole number from 1 to "
+            f"{CUBE_RAIN_MAX} (the number of cubes)"
+        )
+    return cube_rain(int(text))
+
+
+CUBE_RAIN_REPRESENTATIVE = 8  # two layers of 2 x 2: cubes land on cubes, cheap in every sweep
+register(partial(cube_rain, CUBE_RAIN_REPRESENTATIVE))

@@ -76,7 +76,7 @@ from typing import Any
 import tomli_w
 from pydantic import ValidationError
 
-from cases.catalog import CATALOG
+from cases.catalog import CATALOG, CUBE_RAIN_MAX, CUBE_RAIN_PREFIX, family_scene
 from cases.errors import InputError
 from cases.scene import Body, Contact, Expected, Plane, Scene
 
@@ -169,19 +169,26 @@ def scene_to_toml(scene: Scene) -> str:
 
 
 def resolve_case(name_or_path: str) -> Scene:
-    """The catalog scene called `name_or_path`, or else the case file at that path.
+    """The catalog scene called `name_or_path`, a family member (`cube_rain_N`), or else the
+    case file at that path.
 
-    An argument that is not a catalog name but looks like a path (it exists, ends in .toml or
-    has a directory part) is read as a file, so a mistyped path reports the file's problem.
+    An argument that is neither but looks like a path (it exists, ends in .toml or has a
+    directory part) is read as a file, so a mistyped path reports the file's problem. A family
+    name with a bad N (`cube_rain_0`) raises `InputError` saying which N are expected.
     """
     if name_or_path in CATALOG:
         return CATALOG[name_or_path]
     path = Path(name_or_path)
-    if path.exists() or path.suffix == ".toml" or len(path.parts) > 1:
+    looks_like_a_file = path.suffix == ".toml" or len(path.parts) > 1
+    if not looks_like_a_file:
+        scene = family_scene(name_or_path)
+        if scene is not None:
+            return scene
+    if looks_like_a_file or path.exists():
         return load_scene(path)
     raise InputError(
-        f"unknown case {name_or_path!r}: expected a catalog name ({', '.join(CATALOG)}) "
-        "or a path to a .toml file"
+        f"unknown case {name_or_path!r}: expected a catalog name ({', '.join(CATALOG)}), "
+        f"{CUBE_RAIN_PREFIX}N (N from 1 to {CUBE_RAIN_MAX}) or a path to a .toml file"
     )
 
 

@@ -52,6 +52,7 @@ hyperbolic functions, no period).
 import math
 
 import numpy as np
+
 from reference_sim.jit import kernel
 
 # Principal moments closer than this (relative to the largest) are taken as equal, selecting the

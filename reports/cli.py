@@ -17,6 +17,7 @@ from rich.console import Console
 from rich.table import Table
 
 from cases import CATALOG, InputError, resolve_case, scene_to_toml
+from cases.catalog import CUBE_RAIN_MAX, CUBE_RAIN_PREFIX, CUBE_RAIN_REPRESENTATIVE
 from comparators import ENGINES, get_engine, run
 from comparators.bench import BENCH_DURATION_S, MIN_REPEATS
 from comparators.metrics import summarize
@@ -59,7 +60,11 @@ def _repeats(text: str) -> int:
 
 
 def _cmd_list(args, console: Console) -> None:
-    table = Table(title="rigidbench catalog", show_lines=False)
+    caption = (
+        f"also {CUBE_RAIN_PREFIX}N for any N from 1 to {CUBE_RAIN_MAX} "
+        f"({CUBE_RAIN_PREFIX}{CUBE_RAIN_REPRESENTATIVE} above)"
+    )
+    table = Table(title="rigidbench catalog", caption=caption, show_lines=False)
     for col in ("case", "tags", "models", "description"):
         table.add_column(col, overflow="fold")
     for scene in CATALOG.values():
@@ -178,6 +183,7 @@ def _cmd_bench(args, console: Console) -> None:
 
 
 def _cmd_report(args, console: Console) -> None:
+    from comparators import scaling
     from comparators.cache import ResultsCache
     from comparators.sweep import DaskExecutor, LocalExecutor, plan, run_sweep, warm_up
     from reports.report import write_report
@@ -197,7 +203,21 @@ def _cmd_report(args, console: Console) -> None:
         warm_up(engines)
     specs = plan(scenes, engines, quick=args.quick)
     result = run_sweep(specs, cache, executor)
-    files = write_report(result, out, command=" ".join(["rigidbench", *sys.argv[1:]]))
+    table = None
+    if args.scaling:  # here, after the sweep: none of its workers competes for the cores
+        counts = scaling.QUICK_COUNTS if args.quick else scaling.FULL_COUNTS
+        windows = scaling.QUICK_WINDOWS if args.quick else scaling.FULL_WINDOWS
+        started = time.perf_counter()
+        with console.status("scaling", spinner="dots") as status:
+            table = scaling.measure_scaling(
+                counts, engines, windows, progress=lambda label: status.update(f"scaling: {label}")
+            )
+        console.print(
+            f"scaling: cube_rain_N for N in {', '.join(map(str, counts))}, "
+            f"{len(table)} measurements in {time.perf_counter() - started:.1f} s"
+        )
+    command = " ".join(["rigidbench", *sys.argv[1:]])
+    files = write_report(result, out, command=command, scaling=table)
     failed = result.results["verdict"].str.startswith("failed").sum()
     diverged = (result.results["verdict"] == "diverged").sum()
     console.print(
@@ -227,7 +247,17 @@ def build_parser() -> argparse.ArgumentParser:
     rep = sub.add_parser("report", help="sweep case x engine x integrator x dt; write the report")
     rep.add_argument("--cases", nargs="+", help="catalog names or .toml files (default: catalog)")
     rep.add_argument("--engines", nargs="+", help="engine names (default: every available one)")
-    rep.add_argument("--quick", action="store_true", help="a reduced dt sweep (3 steps per case)")
+    rep.add_argument(
+        "--quick",
+        action="store_true",
+        help="a reduced dt sweep (3 steps per case) and a reduced scaling measurement",
+    )
+    rep.add_argument(
+        "--scaling",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="measure the cost per step of cube_rain_N against N (default: on)",
+    )
     rep.add_argument("--out", default=str(DEFAULT_OUT), help=f"output directory ({DEFAULT_OUT})")
     rep.add_argument("--cache", help="results cache directory (default: OUT/cache)")
     rep.add_argument("--executor", choices=("local", "dask"), default="local")

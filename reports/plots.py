@@ -327,3 +327,35 @@ def plot_throughput(table: pd.DataFrame, path: Path, title: str | None = None) -
         note = {"title": text, "title_fontsize": 7}
     _legend_below(fig, ncols=4, **note)
     return _save(fig, path)
+
+
+def plot_scaling(table: pd.DataFrame, path: Path) -> Path | None:
+    """Stepping wall time per step (s) against the number of bodies N, log-log, one panel per
+    window (steps from t = 0) and one line per engine/integrator, valid runs only (rows of
+    `comparators.scaling.measure_scaling`). The dashed line grows as N through the smallest cost
+    per body-step of the panel: a line parallel to it scales linearly. None: no valid run."""
+    valid = table[(table["verdict"] == "ok") & np.isfinite(table["cost_per_step_s"])]
+    if valid.empty:
+        return None
+    windows = sorted(valid["steps"].unique())
+    fig, axes = _figure(1.0 + 3.5 * len(windows), nrows=len(windows))
+    for ax, steps in zip(axes, windows, strict=True):
+        own = valid[valid["steps"] == steps]
+        for (engine, integrator), pair in own.groupby(PAIR, sort=False):
+            pair = pair.sort_values("n_bodies")
+            label = f"{engine} {integrator}" if ax is axes[0] else None
+            style = run_style(engine, integrator)
+            ax.plot(pair["n_bodies"], pair["cost_per_step_s"], label=label, **style)
+        n = np.sort(own["n_bodies"].unique()).astype(float)
+        slope = own["cost_per_body_step_s"].min()
+        label = "∝ N (through the smallest cost per body-step)" if ax is axes[0] else None
+        ax.plot(n, slope * n, color="grey", linestyle="--", linewidth=1, label=label)
+        _log_axes(ax)
+        ax.set_xticks(n, [f"{v:g}" for v in n])
+        ax.set_ylabel("wall time per step (s)")
+        dt = own["dt"].iloc[0]
+        ax.set_title(f"the first {steps} steps from t = 0 ({steps * dt:g} s)", fontsize=10)
+    axes[-1].set_xlabel("N (bodies)")
+    fig.suptitle("cube_rain_N: stepping cost against N", fontsize=11)
+    _legend_below(fig, ncols=4)
+    return _save(fig, path)

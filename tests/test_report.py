@@ -16,6 +16,7 @@ from comparators import ENGINES, run
 from comparators.bench import BENCH_COLUMNS, throughput_from_results
 from comparators.metrics import summarize
 from comparators.outcomes import outcomes
+from comparators.scaling import SCALING_COLUMNS
 from comparators.sweep import OUTCOMES_COLUMNS, RESULT_COLUMNS, SweepResult
 from reports.convergence import (
     ERROR_CEILING_DEG,
@@ -329,3 +330,52 @@ def test_contact_validation_section(tmp_path):
     assert closed_form == "0.7"
     assert measured.startswith("0.7 (") and "[" in measured  # value (error) [range over dts]
     assert "≥ 0.02" in text.split("## Largest stable dt")[1]
+
+
+def scaling_table() -> pd.DataFrame:
+    """A measure_scaling table without measuring: two windows, three N, one failed run."""
+    rows = []
+    for steps in (10, 100):
+        for n in (1, 10, 100):
+            for engine, integrator, per_body in (("reference", "splitting", 3e-5 * n**0.5),
+                                                 ("mujoco", "RK4", 1e-5)):  # fmt: skip
+                row = dict.fromkeys(SCALING_COLUMNS, np.nan)
+                wall = per_body * n * steps
+                row |= {"case": f"cube_rain_{n}", "engine": engine, "integrator": integrator}
+                row |= {"n_bodies": n, "dt": 0.01, "steps": steps, "repeats": 5, "wall_s": wall}
+                row |= {"wall_min_s": wall, "wall_max_s": wall, "setup_s": 0.01, "verdict": "ok"}
+                row |= {"cost_per_step_s": wall / steps, "cost_per_body_step_s": per_body}
+                rows.append(row)
+    rows[-1] |= {"verdict": "failed: boom", "repeats": 0, "cost_per_step_s": np.nan}
+    return pd.DataFrame(rows, columns=SCALING_COLUMNS)
+
+
+def test_report_with_scaling(sweep, tmp_path):
+    table = scaling_table()
+    written = write_report(sweep, tmp_path, "test", scaling=table)
+    assert written["scaling.csv"] == tmp_path / "scaling.csv"
+    pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "scaling.csv"), table)
+    assert (tmp_path / "figures" / "scaling.png").stat().st_size > 10_000
+    text = written["report.md"].read_text()
+    section = text.split("## Scaling")[1].split("\n## ")[0]
+    assert "figures/scaling.png" in section and "failed: boom" in section
+    assert "10 steps (0.1 s): free fall; 100 steps (1 s): landings and the pile" in section
+    rows = [[c.strip() for c in line.split("|")[1:-1]] for line in section.splitlines()]
+    header = next(r for r in rows if "ends at N" in r)
+    plateau = [dict(zip(header, r, strict=True)) for r in rows if len(r) == len(header)][2:]
+    # reference: sqrt(N) per body, past 2x the plateau at N = 10 in both windows; mujoco: flat
+    ends = {(r["engine"], r["steps"]): r["ends at N"] for r in plateau}
+    assert ends == {
+        ("reference", "10"): "10",
+        ("reference", "100"): "10",
+        ("mujoco", "10"): "–",
+        ("mujoco", "100"): "–",
+    }
+    assert missing_references(written["index.html"]) == []
+    assert written["index.html"].read_text().count("<img") == 5
+
+
+def test_no_scaling_figure_without_a_valid_run(sweep, tmp_path):
+    table = scaling_table().assign(verdict="diverged")
+    text = write_report(sweep, tmp_path, "test", scaling=table)["report.md"].read_text()
+    assert "No scaling figure" in text and not (tmp_path / "figures" / "scaling.png").exists()

@@ -1,0 +1,202 @@
+"""Scaling: cost per step of every engine against the number of bodies, on `cube_rain_N`.
+
+`measure_scaling` runs `cases.catalog.cube_rain(n)` for each n on each engine through
+`comparators.engine.run`, the path of every run (model built from the scene, parity checked,
+trajectory recorded at the scene's sample interval), for each window: a number of steps from
+t = 0 at the scene's dt. Times are stepping only (`wall_s`; model building and compilation are
+`setup_s`), after one warm-up run per engine, engines interleaved within every repeat, the
+median of the repeats. A run that fails or diverges is a row with its verdict and no cost;
+nothing is raised.
+
+`plateau_ends` finds, per engine and window, the N at which cost per body-step stops being flat.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from cases.catalog import cube_rain
+from comparators.engine import ENGINES, run
+from comparators.outcomes import verdict
+from comparators.sweep import REPEAT_BELOW_S
+
+# Cube counts. Full: half-decade steps from 1 to the family's largest N. Quick: decades to 100.
+FULL_COUNTS = (1, 3, 10, 30, 100, 300, 1000)
+QUICK_COUNTS = (1, 10, 100)
+# Windows, in steps from t = 0 at cube_rain's dt of 0.01 s. FALL_STEPS: the first 0.1 s, before
+# the bottom layer lands (after about 0.3 s): integration, recording and collision detection
+# only, the same work per body at every N, so a cost per body that grows is the algorithm's.
+# WHOLE_STEPS: the whole 1 s, landings and the pile, contact solving included; there the work per
+# body also grows with the pile (a lone cube touches only the floor). The quick report measures
+# the fall alone, a few seconds in all.
+FALL_STEPS = 10
+WHOLE_STEPS = 100
+FULL_WINDOWS = (FALL_STEPS, WHOLE_STEPS)
+QUICK_WINDOWS = (FALL_STEPS,)
+WARM_UP_STEPS = 1  # enough to load an engine's compiled code and libraries before timing
+# Runs of a few milliseconds vary by up to 3x between repeats on the shared 2-core machine
+# (PyBullet cube_rain_10 over 10 steps: 2.1 to 7.3 ms); the median of 5 ignores two outliers.
+REPEATS = 5
+# Cost per body-step has stopped being flat at the first N where it exceeds this factor times
+# its smallest value over the smaller N (the plateau). The smallest value, not the first: a
+# fixed cost per step divided among few bodies makes the smallest N dearest per body. 2: the
+# fastest repeats still differ by tens of percent between runs of the measurement, so smaller
+# factors would flag noise, and a doubled cost per body means the part growing faster than N
+# has caught up with the linear part. The rule reads the fastest repeat (`wall_min_s`), not the
+# median: other processes only ever add time, and under a load of 2 to 3 on the 2 cores a burst
+# during the repeats of one N moved its median by up to 10x (MuJoCo cube_rain_10, 10 steps:
+# 1.3 to 13.5 ms), enough to end a plateau on its own.
+PLATEAU_FACTOR = 2.0
+
+SCALING_COLUMNS = [
+    "case",
+    "engine",
+    "integrator",
+    "n_bodies",
+    "dt",
+    "steps",
+    "repeats",
+    "wall_s",  # median over repeats, stepping only
+    "wall_min_s",
+    "wall_max_s",
+    "cost_per_step_s",  # wall_s / steps
+    "cost_per_body_step_s",  # wall_s / (steps * n_bodies)
+    "setup_s",  # median over repeats: model building and compilation
+    "verdict",  # "ok", "diverged", "tunnelled", "jitter" (comparators.outcomes), "failed: ..."
+]
+PLATEAU_COLUMNS = [
+    "engine",
+    "integrator",
+    "steps",
+    "plateau_cost_per_body_step_s",  # smallest before the plateau ends, fastest repeats
+    "plateau_n",  # the N where that smallest cost was measured
+    "flat_up_to",  # the largest N before the plateau ends (or the largest N measured)
+    "ends_at",  # the first N above PLATEAU_FACTOR times the plateau; NaN: flat throughout
+]
+
+
+def _pairs(engines: Sequence[str], all_integrators: bool) -> list[tuple[str, str]]:
+    pairs = []
+    for name in engines:
+        engine = ENGINES[name]
+        chosen = engine.integrators if all_integrators else (engine.default_integrator,)
+        pairs += [(name, integrator) for integrator in chosen]
+    return pairs
+
+
+def _timed(scene, engine: str, integrator: str, steps: int):
+    """(trajectory, None) or (None, reason): one run of `steps` steps; never raises."""
+    try:
+        return run(scene, engine, integrator, dt=scene.dt, duration=steps * scene.dt), None
+    except Exception as exc:  # noqa: BLE001  (reported in the table, never raised)
+        return None, f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
+
+
+def measure_scaling(
+    counts: Sequence[int] = FULL_COUNTS,
+    engines: Sequence[str] | None = None,
+    windows: Sequence[int] = FULL_WINDOWS,
+    repeats: int = REPEATS,
+    all_integrators: bool = False,
+    progress: Callable[[str], None] | None = None,
+) -> pd.DataFrame:
+    """Cost per step of `cube_rain_N` for N in `counts`: one row per window, N, engine and
+    integrator (`SCALING_COLUMNS`), in that order of nesting.
+
+    `engines` defaults to every available one; each runs its default integrator, or all of
+    them with `all_integrators`. Each window is a number of steps from t = 0 at the scene's
+    dt. A run is repeated up to `repeats` times while one run takes under REPEAT_BELOW_S
+    (longer runs average scheduler noise within themselves); each repeat runs every engine once,
+    so machine load falls on all of them alike. The verdict is that of the first repeat's
+    trajectory. `progress` is called with a label before every run.
+    """
+    engines = [n for n, e in ENGINES.items() if not e.missing] if engines is None else engines
+    pairs = _pairs(engines, all_integrators)
+    report = progress or (lambda label: None)
+    smallest = cube_rain(min(counts))
+    for engine, integrator in pairs:  # loads compiled code and libraries; nothing is kept
+        report(f"warm-up {engine} {integrator}")
+        _timed(smallest, engine, integrator, WARM_UP_STEPS)
+    rows = []
+    for steps in windows:
+        for n in counts:
+            scene = cube_rain(n)
+            walls: dict[tuple, list[float]] = {pair: [] for pair in pairs}
+            setups: dict[tuple, list[float]] = {pair: [] for pair in pairs}
+            verdicts: dict[tuple, str] = {}
+            for repeat in range(repeats):
+                for pair in pairs:
+                    done = walls[pair]
+                    if pair in verdicts and (verdicts[pair] != "ok" or done[0] >= REPEAT_BELOW_S):
+                        continue
+                    report(f"{scene.name}, {steps} steps, {pair[0]} {pair[1]}, run {repeat + 1}")
+                    traj, error = _timed(scene, *pair, steps)
+                    if traj is None:
+                        verdicts[pair] = f"failed: {error}"
+                        continue
+                    if pair not in verdicts:
+                        verdicts[pair] = verdict(traj, scene)
+                    done.append(traj.meta.wall_s)
+                    setups[pair].append(traj.meta.setup_s)
+            for pair in pairs:
+                rows.append(_row(scene, pair, steps, walls[pair], setups[pair], verdicts[pair]))
+    return pd.DataFrame(rows, columns=SCALING_COLUMNS)
+
+
+def _row(scene, pair, steps, walls, setups, outcome) -> dict:
+    n = len(scene.bodies)
+    row = dict.fromkeys(SCALING_COLUMNS, np.nan)
+    row.update(
+        case=scene.name,
+        engine=pair[0],
+        integrator=pair[1],
+        n_bodies=n,
+        dt=scene.dt,
+        steps=steps,
+        repeats=len(walls) if outcome == "ok" else 0,
+        verdict=outcome,
+    )
+    if setups:
+        row["setup_s"] = float(np.median(setups))
+    if outcome == "ok":  # only valid runs are timed
+        wall = float(np.median(walls))
+        row.update(
+            wall_s=wall,
+            wall_min_s=min(walls),
+            wall_max_s=max(walls),
+            cost_per_step_s=wall / steps,
+            cost_per_body_step_s=wall / (steps * n),
+        )
+    return row
+
+
+def plateau_ends(table: pd.DataFrame, factor: float = PLATEAU_FACTOR) -> pd.DataFrame:
+    """Per engine, integrator and window (steps) of a `measure_scaling` table, where cost per
+    body-step stops being flat (`PLATEAU_COLUMNS`): the first N whose cost per body-step exceeds
+    `factor` times the smallest cost per body-step over the smaller N, both from the fastest
+    repeat (`wall_min_s` / (steps N)). Only valid runs (verdict ok, finite time) count; a group
+    without any has NaN throughout."""
+    rows = []
+    keys = ["engine", "integrator", "steps"]
+    fastest = table["wall_min_s"] / (table["steps"] * table["n_bodies"])
+    table = table.assign(_fastest=fastest)
+    for (engine, integrator, steps), own in table.groupby(keys, sort=False):
+        valid = own[(own["verdict"] == "ok") & np.isfinite(own["_fastest"])]
+        valid = valid.sort_values("n_bodies")
+        row = dict.fromkeys(PLATEAU_COLUMNS, np.nan)
+        row.update(engine=engine, integrator=integrator, steps=steps)
+        best_cost, best_n = np.inf, np.nan
+        for n, cost in zip(valid["n_bodies"], valid["_fastest"], strict=True):
+            if cost > factor * best_cost:
+                row["ends_at"] = n
+                break
+            if cost < best_cost:
+                best_cost, best_n = cost, n
+            row["flat_up_to"] = n
+        if np.isfinite(best_cost):
+            row.update(plateau_cost_per_body_step_s=best_cost, plateau_n=best_n)
+        rows.append(row)
+    return pd.DataFrame(rows, columns=PLATEAU_COLUMNS)
