@@ -42,7 +42,7 @@ from comparators.metrics import pose_errors_between, summarize
 from comparators.outcomes import OUTCOME_COLUMNS, outcomes
 from comparators.parity import ParityError
 from comparators.trajectory import Trajectory, package_versions
-from reference_sim.simulate import COMPILE_STAGES, compile_stage
+from reference_sim.simulate import COMPILE_GROUPS, COMPILE_STAGES, compile_stage, compile_stages
 
 # One row per run. Errors are maxima over the run; drifts are relative (comparators.metrics).
 RESULT_COLUMNS = [
@@ -217,13 +217,12 @@ def execute(spec: RunSpec) -> tuple[Trajectory | None, str | None]:
 
 
 def warm_up(engines: list[str]) -> None:
-    """Compile the reference simulator before workers fork from this process: its contact code
-    and the seed in two processes at once (they write numba's cache), then the rigid step loop
-    around the cached contact code here, and load the rest."""
+    """Compile the reference simulator before workers fork from this process: its
+    `COMPILE_GROUPS` in parallel processes (they write numba's cache), then load it all here."""
     if "reference" in engines:
         ctx = multiprocessing.get_context("fork")
-        with ProcessPoolExecutor(max_workers=2, mp_context=ctx) as pool:
-            list(pool.map(compile_stage, ("contact", "seed")))
+        with ProcessPoolExecutor(max_workers=len(COMPILE_GROUPS), mp_context=ctx) as pool:
+            list(pool.map(compile_stages, COMPILE_GROUPS))
         for stage in COMPILE_STAGES:
             compile_stage(stage)
 

@@ -80,7 +80,18 @@ def simulate(
     return SimResult(steps, samples, shape, work, compile_s, wall_s)
 
 
-COMPILE_STAGES = ("contact", "seed", "rigid")
+# Parts of the simulator that compile independently; the stages of one group run in order
+# (the later ones load the earlier ones' code from numba's cache), the groups in parallel
+# processes. CPU seconds measured on 2 busy cores: seed ~40, contact ~30, rigid ~22 (with the
+# contact code cached): the seed alone takes about as long as the other two.
+COMPILE_GROUPS = (("seed",), ("contact", "rigid"))
+COMPILE_STAGES = tuple(stage for group in COMPILE_GROUPS for stage in group)
+
+
+def compile_stages(stages) -> None:
+    """`compile_stage` each of `stages`, in order."""
+    for stage in stages:
+        compile_stage(stage)
 
 
 def compile_stage(stage: str) -> None:
