@@ -29,10 +29,8 @@ REST_WINDOW = 0.5  # s, the final stretch of the run inspected for rest
 
 def body_arrays(traj: Trajectory, body: str) -> dict[str, np.ndarray]:
     """{'t': (S,), 'x': (S, 3), 'q': (S, 4), 'v': (S, 3), 'w': (S, 3)} of one body."""
-    table = traj.table
-    rows = table["body"].to_numpy() == body
     columns = {"t": ["t"], "x": POSITION, "q": QUATERNION, "v": VELOCITY, "w": ANGULAR_VELOCITY}
-    values = table[[c for names in columns.values() for c in names]].to_numpy(dtype=float)[rows]
+    values = traj.state_by_body.get(body, np.empty((0, 14)))
     out, start = {}, 0
     for key, names in columns.items():
         out[key] = np.ascontiguousarray(values[:, start : start + len(names)])

@@ -13,7 +13,7 @@ import platform
 import tempfile
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
-from functools import cache
+from functools import cache, cached_property
 from importlib import metadata
 from pathlib import Path
 
@@ -103,6 +103,18 @@ class Trajectory:
     @property
     def bodies(self) -> list[str]:
         return list(dict.fromkeys(self.table["body"]))
+
+    @cached_property
+    def state_by_body(self) -> dict[str, np.ndarray]:
+        """Per body, its rows of t and the `STATE` columns as one (S, 14) float array, in table
+        order. Converted from the table once per trajectory: every metric reads these, and
+        converting the table per body and metric cost N^2 for N bodies."""
+        values = self.table[["t", *STATE]].to_numpy(dtype=float)
+        names, owner = np.unique(self.table["body"].to_numpy(dtype=str), return_inverse=True)
+        order = np.argsort(owner, kind="stable")
+        ends = np.cumsum(np.bincount(owner, minlength=len(names)))
+        parts = np.split(values[order], ends[:-1])
+        return dict(zip(names.tolist(), parts, strict=True))
 
     def body(self, name: str) -> pd.DataFrame:
         """The rows of one body, in time order."""

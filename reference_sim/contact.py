@@ -37,7 +37,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from reference_sim.jit import compiled, kernel
+from reference_sim.jit import compiled, inlined_kernel, kernel
 from reference_sim.quaternion import qmatrix
 from reference_sim.vec3 import (
     add,
@@ -622,7 +622,7 @@ def _remember(nc, buf, keep, keys, lam):
     return n
 
 
-@kernel
+@inlined_kernel
 def _solve(model, v, L, nc, buf, warm_keys, warm_lam, n_warm):
     """Projected Gauss-Seidel on the normal and friction impulses of the active contacts
     (`_assemble`), in place, towards `buf.target` normal speeds. Impulses start from those of
@@ -645,7 +645,7 @@ def _solve(model, v, L, nc, buf, warm_keys, warm_lam, n_warm):
     )
 
 
-@kernel
+@inlined_kernel
 def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
     """Speculative impulses on the first nc candidates of `buf`, on the velocity the drift will
     use: v + drift_gravity (m/s), the part of this step's gravity the integrator adds during the
@@ -695,7 +695,7 @@ def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
             v[b, i] -= drift_gravity[i]
 
 
-@kernel
+@inlined_kernel
 def after_drift(model, x, q, v, L, nc, dt, buf):
     """Impulses after the drift on the contacts that pushed before it or bounce
     (`buf.acting`) or touch now (gap below TOUCH_TOLERANCE): the bounce targets of

@@ -1,14 +1,14 @@
 """Mass properties of a particle cluster, as in the seed: I = sum m (r.r 1 - r r^T).
 
-A particle's own sphere adds no inertia. Functions are numba-compiled and also callable from
-Python with numpy arrays.
+A particle's own sphere adds no inertia. Plain Python on numpy arrays, written so that numba can
+compile them too: the seed compiles `inertia_tensor` for its step loop (`reference_sim.seed`),
+while building scenes and models calls them uncompiled, so that importing the catalog compiles
+nothing (it cost ~8 s from an empty numba cache).
 """
 
 import numpy as np
-from numba import njit
 
 
-@njit(cache=True)
 def center_of_mass(positions, masses):
     """(3,) mass-weighted mean of `positions` (n, 3) with `masses` (n,)."""
     c = np.zeros(3)
@@ -17,7 +17,6 @@ def center_of_mass(positions, masses):
     return c / masses.sum()
 
 
-@njit(cache=True)
 def inertia_tensor(offsets, masses):
     """(3, 3) inertia tensor of point masses at `offsets` (n, 3) from the reference point."""
     inertia = np.zeros((3, 3))

@@ -12,3 +12,8 @@ from numba import njit
 
 compiled = njit(cache=True)
 kernel = njit(cache=True, _nrt=False)
+# Kernels with a single caller in the step loop, inlined into it by numba rather than compiled on
+# their own: numba optimises every compiled function together with all it calls, so each level
+# of a deep call chain optimises the code below it again (measured: run_rigid, _steps and
+# rigid_step each took 3-6 s of the ~47 s compile, mostly optimising the contact code again).
+inlined_kernel = njit(cache=True, _nrt=False, inline="always")

@@ -8,7 +8,6 @@ the single-quaternion array functions wrap them, and the batch functions (plural
 import math
 
 import numpy as np
-from numba import njit
 
 from reference_sim.jit import kernel
 
@@ -61,37 +60,38 @@ def qmatrix(q):
     )
 
 
-@njit(cache=True)
+# The array functions below are plain numpy: they serve Python callers (engines, metrics,
+# exact solutions) and compiling them cost ~8 s of every empty-cache start. They run the tuple
+# kernels' own Python code (`.py_func`), elementwise on arrays where they take several
+# quaternions, so the formulas exist once.
+
+
 def quat_multiply(p, q):
     """Hamilton product p q: the rotation q followed by p."""
-    return np.array(qmul(p, q))
+    return np.array(qmul.py_func(p, q))
 
 
-@njit(cache=True)
 def quat_conjugate(q):
     return np.array([q[0], -q[1], -q[2], -q[3]])
 
 
-@njit(cache=True)
 def quat_normalize(q):
-    return np.array(qnormalize(q))
+    return np.array(qnormalize.py_func(q))
 
 
-@njit(cache=True)
 def quat_from_rotvec(v):
     """Exponential map: the rotation by angle |v| about v / |v|."""
-    return np.array(qexp(v))
+    return np.array(qexp.py_func(v))
 
 
-@njit(cache=True)
 def quat_to_matrix(q):
     """(3, 3) rotation matrix of the unit quaternion q."""
-    return np.array(qmatrix(q)).reshape(3, 3)
+    return np.array(qmatrix.py_func(q)).reshape(3, 3)
 
 
-@njit(cache=True)
 def quat_from_matrix(m):
-    """Unit quaternion (w >= 0) of the rotation matrix m, by Shepperd's stable method."""
+    """Unit quaternion (w >= 0) of the rotation matrix m, by Shepperd's stable method.
+    Plain Python that numba compiles too (the seed's samples, `reference_sim.seed`)."""
     tr = m[0, 0] + m[1, 1] + m[2, 2]
     q = np.empty(4)
     if tr >= m[0, 0] and tr >= m[1, 1] and tr >= m[2, 2]:
@@ -108,35 +108,27 @@ def quat_from_matrix(m):
         q[:] = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
     if q[0] < 0:
         q = -q
-    return quat_normalize(q)
+    return q / np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
 
 
-@njit(cache=True)
 def quat_angle_between(p, q):
     """Geodesic angle (rad) of p^-1 q, in [0, pi]; q and -q count as the same rotation.
 
     2 atan2(|vector part|, |scalar part|) keeps full precision near zero, where acos does not.
     """
-    d = quat_multiply(quat_conjugate(p), q)
-    return 2.0 * np.arctan2(np.sqrt(d[1] * d[1] + d[2] * d[2] + d[3] * d[3]), abs(d[0]))
+    return float(quats_angle_between(np.asarray(p)[None], np.asarray(q)[None])[0])
 
 
-@njit(cache=True)
 def quats_to_matrices(qs):
     """(n, 3, 3) rotation matrices of (n, 4) quaternions."""
-    out = np.empty((qs.shape[0], 3, 3))
-    for i in range(qs.shape[0]):
-        out[i] = quat_to_matrix(qs[i])
-    return out
+    qs = np.asarray(qs, dtype=float)
+    return np.stack(qmatrix.py_func(qs.T), axis=-1).reshape(len(qs), 3, 3)
 
 
-@njit(cache=True)
 def quats_angle_between(ps, qs):
-    """(n,) geodesic angles (rad) between (n, 4) quaternion arrays."""
-    out = np.empty(ps.shape[0])
-    for i in range(ps.shape[0]):
-        out[i] = quat_angle_between(ps[i], qs[i])
-    return out
+    """(n,) geodesic angles (rad) between (n, 4) quaternion arrays (`quat_angle_between`)."""
+    d = qmul.py_func(quats_conjugate(ps).T, np.asarray(qs, dtype=float).T)
+    return 2.0 * np.arctan2(np.sqrt(d[1] * d[1] + d[2] * d[2] + d[3] * d[3]), np.abs(d[0]))
 
 
 def quats_multiply(p, q):

@@ -34,7 +34,7 @@ from reference_sim.contact import (
     world_omega,
 )
 from reference_sim.exact_rotation import exact_rotation
-from reference_sim.jit import compiled, kernel
+from reference_sim.jit import compiled, inlined_kernel, kernel
 from reference_sim.quaternion import qexp, qmatrix, qmul, qnormalize
 from reference_sim.vec3 import dot, mat, mat_t_vec, mat_vec, row, vec
 
@@ -150,7 +150,7 @@ def _free_step(model, integrator, x, q, v, L, dt):
     _drift(model, integrator, x, q, v, L, dt)
 
 
-@kernel
+@inlined_kernel
 def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, buf):
     """Advance every body by dt in place; contact impulses before and after the drift.
 

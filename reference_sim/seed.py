@@ -20,8 +20,11 @@ Friction is not part of the seed and is ignored. The seed's gravity is the scene
 import numpy as np
 from numba import njit
 
-from reference_sim.inertia import inertia_tensor
-from reference_sim.quaternion import quat_from_matrix
+from reference_sim import inertia, quaternion
+from reference_sim.jit import compiled
+
+inertia_tensor = compiled(inertia.inertia_tensor)
+quat_from_matrix = compiled(quaternion.quat_from_matrix)
 
 
 @njit(cache=True)
