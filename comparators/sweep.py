@@ -196,12 +196,12 @@ def plan(
     return ordered
 
 
-def execute(spec: RunSpec) -> tuple[Trajectory | None, str | None]:
+def execute(spec: RunSpec) -> tuple[Trajectory | None, str | None, tuple | None]:
     """Run `spec` (repeating it for timing) in whatever process the executor chose.
 
     Returns the trajectory, with wall_s the median stepping time and wall_runs every timing,
-    or None and the reason it failed: an exception never escapes, so one bad run cannot stop a
-    sweep.
+    no error and its `analyse`, computed here so that workers share the work; or None, the
+    reason it failed and None: an exception never escapes, so one bad run cannot stop a sweep.
     """
     try:
         traj = run(spec.scene, spec.engine, spec.integrator, dt=spec.dt)
@@ -209,11 +209,17 @@ def execute(spec: RunSpec) -> tuple[Trajectory | None, str | None]:
         while len(walls) < spec.repeats and traj.meta.wall_s < REPEAT_BELOW_S:
             walls.append(run(spec.scene, spec.engine, spec.integrator, dt=spec.dt).meta.wall_s)
         meta = dataclasses.replace(traj.meta, wall_s=float(np.median(walls)), wall_runs=walls)
-        return Trajectory(traj.table, meta), None
+        traj = Trajectory(traj.table, meta)
     except ParityError as exc:
-        return None, f"parity: {exc}"
+        return None, f"parity: {exc}", None
     except Exception as exc:  # noqa: BLE001  (reported in the results, never raised)
-        return None, f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
+        return None, f"{type(exc).__name__}: {exc}".splitlines()[0][:200], None
+    return traj, None, analyse(spec, traj)
+
+
+def analyse(spec: RunSpec, traj: Trajectory) -> tuple[dict, pd.DataFrame]:
+    """What the results need from one run alone: `summarize` and `run_outcomes`."""
+    return summarize(traj, spec.scene), run_outcomes(spec, traj)
 
 
 def warm_up(engines: list[str]) -> None:
@@ -291,6 +297,7 @@ def run_sweep(
         for spec in specs
     }
     trajectories: dict[RunSpec, Trajectory] = {}
+    analyses: dict[RunSpec, tuple] = {}
     failures: dict[RunSpec, str] = {}
     todo = []
     for spec in specs:
@@ -309,15 +316,16 @@ def run_sweep(
     ]
     with Progress(*columns, disable=not progress or not todo, transient=False) as bar:
         task = bar.add_task(f"{len(todo)} runs ({len(specs) - len(todo)} cached)", total=len(todo))
-        for spec, (traj, error) in executor.map_unordered(execute, todo):
+        for spec, (traj, error, analysis) in executor.map_unordered(execute, todo):
             if traj is None:
                 failures[spec] = error
             else:
                 cache.put(keys[spec], traj)
                 trajectories[spec] = traj
+                analyses[spec] = analysis
             bar.update(task, advance=1, description=spec.label)
     scenes = {spec.scene.name: spec.scene for spec in specs}
-    results, references, measured = _results(specs, keys, trajectories, failures)
+    results, references, measured = _results(specs, keys, trajectories, analyses, failures)
     return SweepResult(
         scenes=scenes,
         results=results,
@@ -356,7 +364,7 @@ def run_outcomes(spec: RunSpec, traj: Trajectory) -> pd.DataFrame:
     return measured.assign(**tags, dt=spec.dt)[OUTCOMES_COLUMNS]
 
 
-def _results(specs, keys, trajectories, failures):
+def _results(specs, keys, trajectories, analyses, failures):
     """(results table, references by case, outcomes table) of a sweep's runs."""
     finest: dict[tuple, RunSpec] = {}
     for spec in trajectories:
@@ -379,8 +387,8 @@ def _results(specs, keys, trajectories, failures):
             row.update(verdict=f"failed: {failures[spec]}", repeats=0)
             rows.append(row)
             continue
-        summary = summarize(traj, spec.scene)
-        measured.append(run_outcomes(spec, traj))
+        summary, run_measured = analyses.get(spec) or analyse(spec, traj)
+        measured.append(run_measured)
         row.update({k: v for k, v in summary.items() if k in row and k != "key"})
         walls = traj.meta.wall_runs or [traj.meta.wall_s]
         row.update(

@@ -8,6 +8,7 @@ import pytest
 from cases import CATALOG
 from comparators.cache import ResultsCache
 from comparators.engine import ENGINES
+from comparators.metrics import summarize
 from comparators.sweep import (
     OUTCOMES_COLUMNS,
     QUICK_DT_FACTORS,
@@ -126,8 +127,9 @@ def test_a_failing_run_is_recorded_not_raised(tmp_path, monkeypatch):
 
 def test_repeats_time_fast_runs_and_keep_every_timing():
     (spec,) = plan(SHORT[:1], ["reference"], repeats=3, dt_factors=(1.0,))[:1]
-    traj, error = execute(spec)
+    traj, error, (summary, measured) = execute(spec)
     assert error is None
+    assert summary["energy_drift"] == summarize(traj, spec.scene)["energy_drift"]
     assert len(traj.meta.wall_runs) == 3
     assert traj.meta.wall_s == np.median(traj.meta.wall_runs)
 
