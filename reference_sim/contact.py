@@ -371,14 +371,15 @@ def _push(model, rows, a, b, v, L, omega, lam):
 
 
 @kernel
-def _assemble(model, x, rot, inv, cands, gate, acting, active, jac, kn, kt, kt_inv, gap):
-    """Per contact: its gap, whether it acts (`acting`, or its gap is at most `gate`), its
-    Jacobian rows and its normal and tangent inverse masses."""
-    for k in range(cands.shape[0]):
+def _assemble(model, x, nc, gate, buf):
+    """Per candidate k < nc of `buf`: its gap, whether it acts (`buf.acting[k]`, or its gap is
+    at most `gate`), its Jacobian rows and its normal and tangent inverse masses."""
+    cands, inv, jac, kn, kt, kt_inv = buf.cands, buf.inv, buf.jac, buf.kn, buf.kt, buf.kt_inv
+    for k in range(nc):
         a, b = cands[k, 0], cands[k, 2]
-        n, gap[k], ra, rb = contact_geometry(model, x, rot, cands, k)
-        active[k] = acting[k] or gap[k] <= gate
-        if not active[k]:
+        n, buf.gap[k], ra, rb = contact_geometry(model, x, buf.rot, cands, k)
+        buf.active[k] = buf.acting[k] or buf.gap[k] <= gate
+        if not buf.active[k]:
             continue
         t1, t2 = _tangents(n)
         for d in range(3):
@@ -666,21 +667,7 @@ def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
         buf.bounce[k] = 0.0
         buf.acting[k] = True
     _bounces(model, x, buf.rot, v, buf.omega, cands, dt, bounce_threshold, buf.bounce)
-    _assemble(
-        model,
-        x,
-        buf.rot,
-        buf.inv,
-        cands,
-        TOUCH_TOLERANCE,
-        buf.acting,
-        buf.active,
-        buf.jac,
-        buf.kn,
-        buf.kt,
-        buf.kt_inv,
-        buf.gap,
-    )
+    _assemble(model, x, nc, TOUCH_TOLERANCE, buf)
     for k in range(nc):
         gap = buf.gap[k]
         buf.target[k] = -gap / dt if gap >= 0.0 else -BAUMGARTE * gap / dt
@@ -701,21 +688,7 @@ def after_drift(model, x, q, v, L, nc, dt, buf):
     (`buf.acting`) or touch now (gap below TOUCH_TOLERANCE): the bounce targets of
     `before_drift`, else inelastic (normal speed >= 0, and friction). Changes v and L."""
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
-    _assemble(
-        model,
-        x,
-        buf.rot,
-        buf.inv,
-        buf.cands[:nc],
-        TOUCH_TOLERANCE,
-        buf.acting,
-        buf.active,
-        buf.jac,
-        buf.kn,
-        buf.kt,
-        buf.kt_inv,
-        buf.gap,
-    )
+    _assemble(model, x, nc, TOUCH_TOLERANCE, buf)
     for k in range(nc):
         buf.target[k] = buf.bounce[k]
     _solve(model, v, L, nc, buf, buf.post_keys, buf.post_lam, buf.counts[1])
