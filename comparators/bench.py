@@ -25,9 +25,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from cases.errors import InputError
 from cases.scene import Scene
-from comparators.engine import ENGINES, get_engine, run
+from comparators.engine import ENGINES, failure_reason, get_engine, run
 from comparators.outcomes import verdict
-from comparators.parity import ParityError
 from comparators.trajectory import Trajectory
 
 BENCH_COLUMNS = [
@@ -117,10 +116,8 @@ def _attempt(spec: BenchRun) -> tuple[Trajectory | None, str | None]:
     try:
         traj = run(spec.scene, spec.engine, spec.integrator, dt=spec.dt, duration=spec.duration)
         return traj, None
-    except ParityError as exc:
-        return None, f"parity: {exc}"
     except Exception as exc:  # noqa: BLE001  (reported in the table, never raised)
-        return None, f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
+        return None, failure_reason(exc)
 
 
 def _row(spec: BenchRun) -> dict:

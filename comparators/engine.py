@@ -7,7 +7,7 @@ import numpy as np
 
 from cases.errors import InputError
 from cases.scene import Scene
-from comparators.parity import check_parity
+from comparators.parity import ParityError, check_parity
 from comparators.trajectory import Trajectory
 
 
@@ -35,6 +35,13 @@ def sample_steps(n_steps: int, stride: int) -> np.ndarray:
     """The step indices every engine samples: 0, every `stride` steps, and the last one."""
     steps = np.arange(0, n_steps + 1, stride)
     return steps if steps[-1] == n_steps else np.append(steps, n_steps)
+
+
+def failure_reason(exc: Exception) -> str:
+    """One line saying why a run failed, for tables that report failures instead of raising."""
+    if isinstance(exc, ParityError):
+        return f"parity: {exc}"
+    return f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
 
 
 def register(engine: Engine) -> Engine:

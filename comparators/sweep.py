@@ -37,10 +37,9 @@ from cases.errors import InputError
 from cases.exact import exact_trajectory_available
 from cases.scene import Scene
 from comparators.cache import ResultsCache, code_version, run_key
-from comparators.engine import ENGINES, run
+from comparators.engine import ENGINES, failure_reason, run
 from comparators.metrics import pose_errors_between, summarize
 from comparators.outcomes import OUTCOME_COLUMNS, outcomes
-from comparators.parity import ParityError
 from comparators.trajectory import Trajectory, package_versions
 from reference_sim.simulate import COMPILE_GROUPS, COMPILE_STAGES, compile_stage, compile_stages
 
@@ -210,10 +209,8 @@ def execute(spec: RunSpec) -> tuple[Trajectory | None, str | None, tuple | None]
             walls.append(run(spec.scene, spec.engine, spec.integrator, dt=spec.dt).meta.wall_s)
         meta = dataclasses.replace(traj.meta, wall_s=float(np.median(walls)), wall_runs=walls)
         traj = Trajectory(traj.table, meta)
-    except ParityError as exc:
-        return None, f"parity: {exc}", None
     except Exception as exc:  # noqa: BLE001  (reported in the results, never raised)
-        return None, f"{type(exc).__name__}: {exc}".splitlines()[0][:200], None
+        return None, failure_reason(exc), None
     return traj, None, analyse(spec, traj)
 
 

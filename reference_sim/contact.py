@@ -13,23 +13,24 @@ momentum sum of m x cross v; none is used.
 Each step is split around the drift (the integrator's position update), like the contact force
 of a kick-drift-kick scheme:
 
-1. Candidates (`find_candidates`): particle-plane pairs, and particle pairs of *different*
-   bodies whose bounding spheres can meet, whose gap could close within the step at the
-   bodies' current speeds. Particles of one body are never paired.
-2. Before the drift (`pre_solve`): speculative contacts on the velocity the drift will use
+1. Candidates (`find_candidates_into`): particle-plane pairs, and particle pairs of *different*
+   bodies whose bounding spheres can meet (`all_pairs`, or `grid_pairs` for many bodies),
+   whose gap could close within the step at the bodies' current speeds. Particles of one body
+   are never paired.
+2. Before the drift (`before_drift`): speculative contacts on the velocity the drift will use
    (v plus the part of this step's gravity the integrator adds during the drift). A contact
    with gap g may approach by at most g / dt, so the drift ends touching, never penetrating
    (to first order in the rotation). A contact that would close within the step at more than
    the bounce threshold bounces: its normal speed becomes -e times the approach speed. Coulomb
    friction acts with every normal impulse. A gap already negative (the rotation's second-order
    overshoot) is closed at BAUMGARTE of its depth per step.
-3. After the drift (`post_solve`): touching contacts get the inelastic rest of the step's
+3. After the drift (`after_drift`): touching contacts get the inelastic rest of the step's
    impulse (normal speed >= 0 and friction), which removes the gravity the drift's second half
    added: a resting body ends the step with zero velocity, exactly still, without creep.
 
 Both solves are projected Gauss-Seidel with accumulated impulses: normal impulse >= 0, friction
 impulse inside the disc |P_t| <= mu P_n; impulses change the COM velocity and the world angular
-momentum (dL = r x P).
+momentum (dL = r x P). They work in `ContactBuffers`, allocated once per run.
 """
 
 import math

@@ -54,6 +54,7 @@ import math
 import numpy as np
 
 from reference_sim.jit import kernel
+from reference_sim.quaternion import qmul
 
 # Principal moments closer than this (relative to the largest) are taken as equal, selecting the
 # isotropic or axisymmetric closed form (exactly equal moments are a 0/0 in the elliptic
@@ -275,17 +276,6 @@ def _weight_integral(s, c, m1, k):
 
 
 @kernel
-def _qmul(aw, ax, ay, az, bw, bx, by, bz):
-    """Hamilton product of two quaternions given as scalars."""
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
-
-
-@kernel
 def _qexp(vx, vy, vz):
     """The rotation by angle |v| about v / |v| (any |v|: sin and cos reduce the angle)."""
     angle = math.sqrt(vx * vx + vy * vy + vz * vz)
@@ -429,8 +419,8 @@ def _principal_step(p1, p2, p3, i1, i2, i3, sep, l_norm, dt):
     b0 = _euler_b(p1, p2, p3)
     cz, sz = math.cos(0.5 * dphi), math.sin(0.5 * dphi)
     # Rz(dphi) B(pi1), then B(pi0)^-1 on the left.
-    t = _qmul(cz, 0.0, 0.0, sz, q1[0], q1[1], q1[2], q1[3])
-    return _qmul(b0[0], -b0[1], -b0[2], -b0[3], t[0], t[1], t[2], t[3])
+    t = qmul((cz, 0.0, 0.0, sz), q1)
+    return qmul((b0[0], -b0[1], -b0[2], -b0[3]), t)
 
 
 @kernel
@@ -463,7 +453,7 @@ def exact_rotation(q, L, moments, axes, dt):
         # Isotropic: omega = L / I is constant in the world.
         s = dt * 3.0 / (ia + ib + ic)
         e = _qexp(s * lx, s * ly, s * lz)
-        out = _qmul(e[0], e[1], e[2], e[3], qw, qx, qy, qz)
+        out = qmul(e, (qw, qx, qy, qz))
         return _signed_unit(out, qw, qx, qy, qz)
     # Body-frame angular momentum R^T L: rotate L by the conjugate of q.
     ux, uy, uz = -qx, -qy, -qz
@@ -485,8 +475,8 @@ def exact_rotation(q, L, moments, axes, dt):
         spin = _qexp(rate * sx, rate * sy, rate * sz)
         f = dt / i_trans
         e = _qexp(f * lx, f * ly, f * lz)
-        t = _qmul(qw, qx, qy, qz, spin[0], spin[1], spin[2], spin[3])
-        out = _qmul(e[0], e[1], e[2], e[3], t[0], t[1], t[2], t[3])
+        t = qmul((qw, qx, qy, qz), spin)
+        out = qmul(e, t)
         return _signed_unit(out, qw, qx, qy, qz)
     a0x, a0y, a0z = axes[0, 0], axes[0, 1], axes[0, 2]
     a1x, a1y, a1z = axes[1, 0], axes[1, 1], axes[1, 2]
@@ -519,7 +509,7 @@ def exact_rotation(q, L, moments, axes, dt):
             w = p2 / i2 * dt
             e = _qexp(w * f2 * e2x, w * f2 * e2y, w * f2 * e2z)
         # a rotation about a body-frame axis multiplies on the right
-        out = _qmul(qw, qx, qy, qz, e[0], e[1], e[2], e[3])
+        out = qmul((qw, qx, qy, qz), e)
         return _signed_unit(out, qw, qx, qy, qz)
     d = _principal_step(p1, p2, p3, i1, i2, i3, sep, l_norm, dt)
     # The principal frame P as a rotation of the body frame: columns f1 e1, f2 e2, f3 e3.
@@ -534,7 +524,7 @@ def exact_rotation(q, L, moments, axes, dt):
         f2 * e2z,
         f3 * e3z,
     )
-    t = _qmul(d[0], d[1], d[2], d[3], pw, -px, -py, -pz)
-    t = _qmul(pw, px, py, pz, t[0], t[1], t[2], t[3])
-    out = _qmul(qw, qx, qy, qz, t[0], t[1], t[2], t[3])
+    t = qmul(d, (pw, -px, -py, -pz))
+    t = qmul((pw, px, py, pz), t)
+    out = qmul((qw, qx, qy, qz), t)
     return _signed_unit(out, qw, qx, qy, qz)

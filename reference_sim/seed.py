@@ -18,7 +18,6 @@ Friction is not part of the seed and is ignored. The seed's gravity is the scene
 """
 
 import numpy as np
-from numba import njit
 
 from reference_sim import inertia, quaternion
 from reference_sim.jit import compiled
@@ -27,7 +26,7 @@ inertia_tensor = compiled(inertia.inertia_tensor)
 quat_from_matrix = compiled(quaternion.quat_from_matrix)
 
 
-@njit(cache=True)
+@compiled
 def _collide_particles(model, pos, vel):
     e = model.restitution
     n = pos.shape[0]
@@ -50,7 +49,7 @@ def _collide_particles(model, pos, vel):
                 vel[j] += dv2
 
 
-@njit(cache=True)
+@compiled
 def _update_bodies(model, pos, vel, cm, V, omega, dt):
     for b in range(cm.shape[0]):
         lo, hi = model.body_start[b], model.body_start[b + 1]
@@ -70,7 +69,7 @@ def _update_bodies(model, pos, vel, cm, V, omega, dt):
             vel[i] = V[b] + np.cross(omega[b], r)
 
 
-@njit(cache=True)
+@compiled
 def _apply_walls(model, pos, vel, cm, V, omega):
     e = model.restitution
     for b in range(cm.shape[0]):
@@ -88,7 +87,7 @@ def _apply_walls(model, pos, vel, cm, V, omega):
             vel[i] = V[b] + np.cross(omega[b], pos[i] - cm[b])
 
 
-@njit(cache=True)
+@compiled
 def seed_step(model, pos, vel, cm, V, omega, dt):
     """One step of the blog's simulate_step!, in place."""
     if model.contact:
@@ -98,7 +97,7 @@ def seed_step(model, pos, vel, cm, V, omega, dt):
         _apply_walls(model, pos, vel, cm, V, omega)
 
 
-@njit(cache=True)
+@compiled
 def best_fit_rotation(reference, current, masses):
     """Rotation matrix R minimising sum m |R reference_i - current_i|^2 (Kabsch); both centred."""
     h = np.zeros((3, 3))
@@ -111,7 +110,7 @@ def best_fit_rotation(reference, current, masses):
     return vt.T @ fix @ u.T
 
 
-@njit(cache=True)
+@compiled
 def _record(model, pos, vel, out, shape_error):
     """Body observables of the deforming particle cluster.
 
@@ -149,7 +148,7 @@ def _record(model, pos, vel, out, shape_error):
         shape_error[b] = worst
 
 
-@njit(cache=True)
+@compiled
 def run_seed(model, pos, vel, cm, V, omega, dt, n_steps, stride):
     """Step n_steps times in place; return (steps, samples (S, B, 13), shape_error (S, B))."""
     nb = cm.shape[0]

@@ -135,33 +135,33 @@ def _write_text(path: Path, text: str) -> Path:
     return path
 
 
+def _write_table(table: pd.DataFrame, columns: list[str], name: str, out: Path, formats):
+    """NAME.csv (and NAME.parquet among `formats`) in `out`, exactly `columns`, written
+    atomically; a missing column is an error naming what was expected."""
+    missing = [c for c in columns if c not in table]
+    if missing:
+        raise ValueError(f"{name} table lacks column(s) {missing}: expected {columns}")
+    table = table[columns].reset_index(drop=True)
+    paths = {}
+    for fmt in formats:
+        path = paths[f"{name}.{fmt}"] = out / f"{name}.{fmt}"
+        with atomic_path(path) as tmp:
+            if fmt == "parquet":
+                table.to_parquet(tmp, index=False)
+            else:
+                table.to_csv(tmp, index=False)
+    return paths
+
+
 def write_results(results: pd.DataFrame, out: Path) -> dict[str, Path]:
     """results.parquet and results.csv: one row per run, exactly `RESULT_COLUMNS`."""
-    missing = [c for c in RESULT_COLUMNS if c not in results]
-    if missing:
-        raise ValueError(f"results lack column(s) {missing}: expected RESULT_COLUMNS")
-    table = results[RESULT_COLUMNS].reset_index(drop=True)
-    paths = {"results.parquet": out / "results.parquet", "results.csv": out / "results.csv"}
-    with atomic_path(paths["results.parquet"]) as tmp:
-        table.to_parquet(tmp, index=False)
-    with atomic_path(paths["results.csv"]) as tmp:
-        table.to_csv(tmp, index=False)
-    return paths
+    return _write_table(results, RESULT_COLUMNS, "results", out, ("parquet", "csv"))
 
 
 def write_outcomes(outcomes: pd.DataFrame, out: Path) -> dict[str, Path]:
     """outcomes.parquet and outcomes.csv: one row per run and measured quantity, exactly
     `OUTCOMES_COLUMNS`."""
-    missing = [c for c in OUTCOMES_COLUMNS if c not in outcomes]
-    if missing:
-        raise ValueError(f"outcomes lack column(s) {missing}: expected OUTCOMES_COLUMNS")
-    table = outcomes[OUTCOMES_COLUMNS].reset_index(drop=True)
-    paths = {"outcomes.parquet": out / "outcomes.parquet", "outcomes.csv": out / "outcomes.csv"}
-    with atomic_path(paths["outcomes.parquet"]) as tmp:
-        table.to_parquet(tmp, index=False)
-    with atomic_path(paths["outcomes.csv"]) as tmp:
-        table.to_csv(tmp, index=False)
-    return paths
+    return _write_table(outcomes, OUTCOMES_COLUMNS, "outcomes", out, ("parquet", "csv"))
 
 
 def expected_orders(result: SweepResult) -> dict[tuple[str, str], int]:
@@ -750,13 +750,7 @@ def _renamed(formats: dict[str, Callable]) -> dict[str, Callable]:
 
 def write_scaling(table: pd.DataFrame, out: Path) -> dict[str, Path]:
     """scaling.csv: one row per scaling run, exactly `SCALING_COLUMNS`."""
-    missing = [c for c in SCALING_COLUMNS if c not in table]
-    if missing:
-        raise ValueError(f"scaling table lacks column(s) {missing}: expected SCALING_COLUMNS")
-    path = out / "scaling.csv"
-    with atomic_path(path) as tmp:
-        table[SCALING_COLUMNS].to_csv(tmp, index=False)
-    return {"scaling.csv": path}
+    return _write_table(table, SCALING_COLUMNS, "scaling", out, ("csv",))
 
 
 def _flatten(settings: dict, prefix: str = "") -> dict[str, str]:
