@@ -63,8 +63,9 @@ def fit_orders(results: pd.DataFrame, orders: dict[tuple[str, str], int]) -> pd.
     `orders` maps (engine, integrator) to the expected order. Only runs with verdict "ok" count;
     orientation errors (deg) are fitted inside [ERROR_FLOOR_DEG, ERROR_CEILING_DEG], position
     errors (m) above POSITION_FLOOR_M. Columns: case, engine, integrator, expected_order,
-    order, r2, points, dt_min, dt_max (s), note, and the same prefixed `position_` for
-    position errors (note "exact" when every position error is below POSITION_FLOOR_M).
+    order, r2, points, dt_min, dt_max (s), note (starting "rounding" when every orientation
+    error is below ERROR_FLOOR_DEG), and the same prefixed `position_` for position errors
+    (note "exact" when every position error is below POSITION_FLOOR_M).
     """
     rows = []
     for (case, engine, integrator), runs in results.groupby(KEYS, sort=False):
@@ -72,8 +73,11 @@ def fit_orders(results: pd.DataFrame, orders: dict[tuple[str, str], int]) -> pd.
         dt = valid["dt"].to_numpy(float)
         error = valid["orientation_error_deg"].to_numpy(float)
         fit = fit_power_law(dt, error, ERROR_FLOOR_DEG, ERROR_CEILING_DEG)
-        if not np.isfinite(error).any():
+        finite = error[np.isfinite(error)]
+        if not len(finite):
             fit["note"] = "no valid run with an orientation error"
+        elif (finite < ERROR_FLOOR_DEG).all():
+            fit["note"] = f"rounding: every error below {ERROR_FLOOR_DEG:g} deg, no order to fit"
         row = {"case": case, "engine": engine, "integrator": integrator}
         row["expected_order"] = orders.get((engine, integrator), np.nan)
         rows.append(row | fit | _position_fit(dt, valid["position_error"].to_numpy(float)))

@@ -138,6 +138,25 @@ def test_fit_uses_only_the_asymptotic_range():
     assert (fit["points"], fit["dt_min"], fit["dt_max"]) == (4, 0.005, 0.05)
 
 
+def test_errors_all_at_rounding_are_labelled_rounding():
+    runs = pd.DataFrame(
+        {
+            "case": "c",
+            "engine": "e",
+            "integrator": ["exact"] * 3 + ["euler"] * 4,
+            "dt": [0.1, 0.05, 0.02, 0.1, 0.05, 0.02, 1e-12],
+            "verdict": "ok",
+            "orientation_error_deg": [3e-10, 1e-10, 2e-10, 10.0, 5.0, 2.0, 1e-11],
+            "position_error": 0.0,
+        }
+    )
+    fits = fit_orders(runs, {}).set_index("integrator")
+    assert np.isnan(fits.at["exact", "order"])
+    assert fits.at["exact", "note"].startswith("rounding")
+    # one error at rounding among fitted ones is only left out of the fit
+    assert fits.at["euler", "note"] == "" and fits.at["euler", "points"] == 3
+
+
 def test_no_fit_with_fewer_than_three_points():
     fit = fit_power_law(np.array([0.1, 0.01, 0.001]), np.array([100.0, 1.0, 1e-12]), 1e-9, 30.0)
     assert np.isnan(fit["order"]) and fit["points"] == 1
