@@ -210,6 +210,8 @@ def summarize(traj: Trajectory, scene: Scene) -> dict[str, float | str | bool]:
         "wall_s": m.wall_s,
         "steps_per_s": m.steps_per_s,
         "realtime_factor": m.duration / m.wall_s if m.wall_s > 0 else float("inf"),
+        "solver_sweeps": m.solver.get("sweeps_per_solve", np.nan),
+        "solver_at_limit": m.solver.get("at_limit", np.nan),
     }
     with np.errstate(over="ignore", invalid="ignore"):  # a blown-up run's drifts are inf
         out.update(drifts(traj, scene))

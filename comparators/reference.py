@@ -6,6 +6,7 @@ from cases.scene import Scene
 from comparators.engine import register
 from comparators.parity import body_readback
 from comparators.trajectory import RunMeta, Trajectory, package_versions
+from reference_sim.contact import MAX_ITERATIONS, solver_tolerance
 from reference_sim.model import Model, build_model, rigid_initial_state, seed_initial_state
 from reference_sim.simulate import INTEGRATORS, ORDERS, simulate
 
@@ -66,21 +67,41 @@ class ReferenceEngine:
             settings={
                 "integrator": integrator,
                 "timestep": dt,
-                "contact": "impulses: position projection + PGS velocity impulses"
-                if scene.has_contact
-                else "none",
                 "gravity": "on" if model.gravity_on else "off",
                 "restitution": model.restitution,
                 "friction": model.friction,
-                "friction_cone": "isotropic Coulomb disc",
                 "inertia": "particle tensor, full 3 x 3",
+                **_contact_settings(scene, integrator, dt),
             },
             bodies=bodies,
+            solver=_solver_report(result.solver),
         )
         extra = None if result.shape_error is None else {"shape_error": result.shape_error}
         return Trajectory.from_samples(
             result.steps * dt, [b.name for b in scene.bodies], result.samples, meta, extra
         )
+
+
+def _contact_settings(scene: Scene, integrator: str, dt: float) -> dict:
+    if not scene.has_contact:
+        return {"contact": "none"}
+    if integrator == "seed":
+        return {"contact": "the blog's: particles pushed apart and clamped to walls, restitution"}
+    return {
+        "contact": "impulses only: speculative before the drift, bounce and rest after it",
+        "friction_cone": "isotropic Coulomb disc",
+        "solver": "projected Gauss-Seidel, warm-started",
+        "iterations": MAX_ITERATIONS,
+        "tolerance": solver_tolerance(dt),  # m/s
+    }
+
+
+def _solver_report(solver) -> dict[str, float]:
+    """`RunMeta.solver` from `run_rigid`'s statistics (solves, sweeps, solves at the limit)."""
+    if solver is None or solver[0] == 0:
+        return {}
+    solves, sweeps, at_limit = (int(n) for n in solver)
+    return {"solves": solves, "sweeps_per_solve": sweeps / solves, "at_limit": at_limit}
 
 
 register(ReferenceEngine())

@@ -58,6 +58,8 @@ RESULT_COLUMNS = [
     "wall_max_s",
     "steps_per_s",
     "realtime_factor",
+    "solver_sweeps",  # contact solver sweeps per solve, where the engine reports it, else NaN
+    "solver_at_limit",  # contact solves stopped at the solver's iteration limit (unconverged)
     "energy_drift",
     "momentum_drift",
     "angular_momentum_drift",

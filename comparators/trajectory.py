@@ -56,7 +56,9 @@ class RunMeta:
 
     `settings` is the parity manifest: every engine setting that affects the result.
     `bodies` maps body names to the model read back from the engine before stepping
-    (`comparators.parity.body_readback`): mass, inertia, x, v, w.
+    (`comparators.parity.body_readback`): mass, inertia, x, v, w. `solver` is what the engine
+    reports about its own contact solver over the run, where it reports anything: `solves`,
+    `sweeps_per_solve` and `at_limit` (solves stopped at the iteration limit, unconverged).
     """
 
     case: str
@@ -71,6 +73,7 @@ class RunMeta:
     settings: dict[str, object] = field(default_factory=dict)
     bodies: dict[str, dict] = field(default_factory=dict)
     wall_runs: list[float] = field(default_factory=list)  # every timing when repeated
+    solver: dict[str, float] = field(default_factory=dict)
 
     @property
     def steps_per_s(self) -> float:

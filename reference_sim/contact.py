@@ -82,6 +82,12 @@ GRID_MIN_BODIES = 16
 
 
 @kernel
+def solver_tolerance(dt):
+    """Where Gauss-Seidel stops (m/s): VELOCITY_TOLERANCE, or GAP_ROUNDING / dt if larger."""
+    return max(VELOCITY_TOLERANCE, GAP_ROUNDING / dt)
+
+
+@kernel
 def world_omega(model, q, L, b):
     """World angular velocity omega = R I0^-1 R^T L of body b (q, L: that body's rows), a tuple."""
     r = qmatrix(q)
@@ -559,7 +565,8 @@ class ContactBuffers(NamedTuple):
     cands (C, 4), keys (C,) (increasing), jac (C, 3, 5, 3), kn (C,), kt and kt_inv (C, 4)
     (2 x 2 row major), k_inv (C, 9) (the inverse 3 x 3 mass of normal and tangents, row major),
     gap, target, bounce (C,), active, acting (C,), lam (C, 3); bodies (B, 6), v and omega at a
-    sweep's start. The warm
+    sweep's start. solver (3,): solves, sweeps and solves that reached MAX_ITERATIONS, summed
+    over the run. The warm
     start: the previous step's impulses before and after the drift, keys and impulses of
     counts[0] and counts[1] contacts, in key order. counts[2]: how many rows of `pairs` the
     caller filled for this step, or -1 to have them found pair by pair.
@@ -589,6 +596,7 @@ class ContactBuffers(NamedTuple):
     post_keys: np.ndarray
     post_lam: np.ndarray
     counts: np.ndarray
+    solver: np.ndarray
 
 
 @compiled
@@ -622,6 +630,7 @@ def contact_buffers(n_bodies, capacity, pair_capacity):
         np.empty(c, dtype=np.int64),
         np.zeros((c, 3)),
         counts,
+        np.zeros(3, dtype=np.int64),
     )
 
 
@@ -637,6 +646,7 @@ def _carry_over(old, new):
             new.post_lam[k, d] = old.post_lam[k, d]
     for k in range(3):
         new.counts[k] = old.counts[k]
+        new.solver[k] = old.solver[k]
 
 
 @compiled
@@ -706,12 +716,15 @@ def _remember(nc, buf, keep, keys, lam):
 @inlined_kernel
 def _solve(model, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm):
     """Projected Gauss-Seidel on the normal and friction impulses of the active contacts
-    (`_assemble`), in place, towards `buf.target` normal speeds, to VELOCITY_TOLERANCE or the
-    targets' rounding GAP_ROUNDING / dt. Impulses start from those of the same contacts in the
-    previous step (`warm_keys`, `warm_lam`), so a resting stack converges in a few sweeps
-    instead of hundreds. Returns the sweeps used."""
+    (`_assemble`), in place, towards `buf.target` normal speeds, to `solver_tolerance(dt)`.
+    Impulses start from those of the same contacts in the previous step (`warm_keys`,
+    `warm_lam`): a body resting on a plane converges in one sweep. Counts the solve in
+    `buf.solver`."""
     _warm_start(model, nc, buf, v, L, warm_keys, warm_lam, n_warm)
-    return _iterate(model, nc, buf, v, L, max(VELOCITY_TOLERANCE, GAP_ROUNDING / dt))
+    sweeps = _iterate(model, nc, buf, v, L, solver_tolerance(dt))
+    buf.solver[0] += 1
+    buf.solver[1] += sweeps
+    buf.solver[2] += sweeps == MAX_ITERATIONS
 
 
 @inlined_kernel

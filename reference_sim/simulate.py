@@ -39,6 +39,8 @@ class SimResult(NamedTuple):
       steps: (S,) step index of each sample; t = steps * dt.
       samples: (S, B, 13) per body x (3), q (4, w first), v (3), world omega (3).
       shape_error: (S, B) largest relative change of an inter-particle distance (seed only).
+      solver: the contact solver's statistics (rigid integrators only): solves, Gauss-Seidel
+        sweeps and solves that reached MAX_ITERATIONS, over the run.
       state: the final state.  compile_s: time spent compiling or loading compiled code (s).
       wall_s: time spent stepping alone (s).
     """
@@ -46,15 +48,20 @@ class SimResult(NamedTuple):
     steps: np.ndarray
     samples: np.ndarray
     shape_error: np.ndarray | None
+    solver: np.ndarray | None
     state: RigidState | SeedState
     compile_s: float
     wall_s: float
 
 
 def _call(model, integrator, state, dt, n_steps, stride):
+    """(steps, samples, shape_error, solver) of a run, None where the integrator has none."""
     if integrator == "seed":
-        return run_seed(model, *state, dt, n_steps, stride)
-    return (*run_rigid(model, RIGID_INTEGRATORS[integrator], *state, dt, n_steps, stride), None)
+        return (*run_seed(model, *state, dt, n_steps, stride), None)
+    steps, samples, solver = run_rigid(
+        model, RIGID_INTEGRATORS[integrator], *state, dt, n_steps, stride
+    )
+    return steps, samples, None, solver
 
 
 def simulate(
@@ -75,9 +82,9 @@ def simulate(
     compile_s = time.perf_counter() - start
     work = type(state)(*(a.copy() for a in state))
     start = time.perf_counter()
-    steps, samples, shape = _call(model, integrator, work, dt, int(n_steps), int(stride))
+    steps, samples, shape, solver = _call(model, integrator, work, dt, int(n_steps), int(stride))
     wall_s = time.perf_counter() - start
-    return SimResult(steps, samples, shape, work, compile_s, wall_s)
+    return SimResult(steps, samples, shape, solver, work, compile_s, wall_s)
 
 
 # Parts of the simulator that compile independently; the stages of one group run in order

@@ -60,9 +60,12 @@ METRIC_HEADERS = {
     "orientation_error_deg": "orientation error (deg)",
     "rest_com_height": "rest height (m)",
     "shape_error": "shape error",
+    "solver_sweeps": "solver sweeps per solve",
+    "solver_at_limit": "solves at iteration limit",
     "verdict": "verdict",
 }
-SHOWN_WHERE_MEASURED = ("rest_com_height", "shape_error")  # columns dropped when all NaN
+# columns dropped when all NaN
+SHOWN_WHERE_MEASURED = ("rest_com_height", "shape_error", "solver_sweeps", "solver_at_limit")
 
 CSS = """
 body { font-family: system-ui, sans-serif; max-width: 60rem; margin: 2rem auto; padding: 0 1rem;
@@ -400,6 +403,11 @@ def _pareto_sentence(runs: pd.DataFrame) -> str:
     )
 
 
+SOLVER_NOTE = (
+    " Solver columns are what an engine reports of its own contact solver, where it reports "
+    "anything: the reference's Gauss-Seidel sweeps per solve (two solves a step with contact) "
+    "and the solves it stopped at its iteration limit, unconverged."
+)
 CONTACT_ORDER_NOTE = (
     " With contact, impacts are resolved once per step, so no integrator converges faster "
     "than first order overall; the expected orders are those of the smooth motion between "
@@ -429,7 +437,8 @@ def _case(result: SweepResult, case: str, fits: pd.DataFrame, figures: dict, out
         "",
         "How to read: drifts are relative maxima over the run (0 is exact conservation), errors "
         "the largest over the run against the reference; steps/s and realtime factor are "
-        "stepping only, higher is faster.",
+        "stepping only, higher is faster."
+        + (SOLVER_NOTE if runs["solver_sweeps"].notna().any() else ""),
         "",
         _metrics(runs),
         "",
