@@ -565,11 +565,10 @@ class ContactBuffers(NamedTuple):
     cands (C, 4), keys (C,) (increasing), jac (C, 3, 5, 3), kn (C,), kt and kt_inv (C, 4)
     (2 x 2 row major), k_inv (C, 9) (the inverse 3 x 3 mass of normal and tangents, row major),
     gap, target, bounce (C,), active, acting (C,), lam (C, 3); bodies (B, 6), v and omega at a
-    sweep's start. solver (3,): solves, sweeps and solves that reached MAX_ITERATIONS, summed
-    over the run. The warm
-    start: the previous step's impulses before and after the drift, keys and impulses of
-    counts[0] and counts[1] contacts, in key order. counts[2]: how many rows of `pairs` the
-    caller filled for this step, or -1 to have them found pair by pair.
+    sweep's start. The warm start: the previous step's impulses before and after the drift,
+    keys and impulses of counts[0] and counts[1] contacts, in key order. counts[2]: how many
+    rows of `pairs` the caller filled for this step, or -1 to have them found pair by pair.
+    solver (3,): solves, sweeps and solves that reached MAX_ITERATIONS, summed over the run.
     """
 
     rot: np.ndarray
