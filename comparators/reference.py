@@ -6,7 +6,12 @@ from cases.scene import Scene
 from comparators.engine import register
 from comparators.parity import body_readback
 from comparators.trajectory import RunMeta, Trajectory, package_versions
-from reference_sim.contact import MAX_ITERATIONS, solver_tolerance
+from reference_sim.contact import (
+    MAX_ITERATIONS,
+    SUBSPACE_EVERY,
+    SUBSPACE_STEPS,
+    solver_tolerance,
+)
 from reference_sim.model import Model, build_model, rigid_initial_state, seed_initial_state
 from reference_sim.simulate import INTEGRATORS, ORDERS, simulate
 
@@ -90,7 +95,8 @@ def _contact_settings(scene: Scene, integrator: str, dt: float) -> dict:
     return {
         "contact": "impulses only: speculative before the drift, bounce and rest after it",
         "friction_cone": "isotropic Coulomb disc",
-        "solver": "projected Gauss-Seidel, warm-started",
+        "solver": "projected Gauss-Seidel, warm-started, with subspace steps",
+        "subspace_steps": f"every {SUBSPACE_EVERY} sweeps, at most {SUBSPACE_STEPS} a solve",
         "iterations": MAX_ITERATIONS,
         # m/s; the kernel's Python code: stating a setting should compile nothing
         "tolerance": solver_tolerance.py_func(dt),

@@ -94,3 +94,92 @@ def test_gauss_seidel_ends_on_targets_no_rigid_motion_meets():
     after = np.concatenate([v.ravel(), buf.omega.ravel()])
     # |dv| + bound radius |d omega|, as the stopping test measures it
     assert np.abs(after - before).max() * (1.0 + model.bound_radius[0]) < tolerance
+
+
+def _settled(name, friction=None):
+    """A catalog scene's model and state one step in, its contacts' impulses converged to
+    rounding: the gravity kick of one step at rest, targets 0."""
+    scene = CATALOG[name]
+    model = model_from_scene(scene)
+    if friction is not None:
+        model = model._replace(friction=friction)
+    bodies = scene.bodies
+    x, q, v, L = rigid_initial_state(
+        model,
+        [b.com for b in bodies],
+        [b.velocity for b in bodies],
+        [b.angular_velocity for b in bodies],
+    )
+    buf = contact.contact_buffers(len(bodies), 64, 16)
+    contact.frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
+    nc = contact.find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
+    buf.acting[:nc] = True
+    contact._assemble(model, x, nc, contact.TOUCH_TOLERANCE, buf)
+    buf.target[:nc] = 0.0
+    v += scene.dt * model.gravity
+    assert contact._iterate(model, nc, buf, v, L, 1e-14) < contact.MAX_ITERATIONS
+    return model, nc, buf, v, L
+
+
+def _row_speeds(buf, n_rows, v):
+    """Each subspace row's speed minus its target (m/s)."""
+    rows = buf.rows[:n_rows]
+    return np.array(
+        [
+            contact._speed(buf.jac[k, d], buf.cands[k, 0], buf.cands[k, 2], v, buf.omega)
+            - (buf.target[k] if d == 0 else 0.0)
+            for k, d in rows
+        ]
+    )
+
+
+@pytest.mark.parametrize("friction", [0.0, None])
+def test_subspace_step_meets_consistent_targets_at_once(friction):
+    """A resting cube nudged (1e-6 m/s, 1e-6 rad/s): its four bottom corners' normal rows (and
+    friction rows, all sticking, with friction) are redundant but consistent, and the nudge's
+    impulse changes keep every impulse inside its bounds. One subspace step must then meet
+    every row to the regularisation's share of the nudge (1e-8 of 1e-6 m/s, times a condition
+    of order one: 1e-12 allowed); a Gauss-Seidel sweep leaves a fraction of order one."""
+    model, nc, buf, v, L = _settled("resting_cube", friction)
+    n_rows, n_bodies = contact._subspace_rows(model, nc, buf)
+    assert (n_rows, n_bodies) == ((4 if friction == 0.0 else 12), 1)
+    v[0] += (1e-6, -2e-6, 1e-6)
+    L[0] += model.inertia0[0] @ np.array([1e-6, 1e-6, 0.0])
+    contact.frames_into(model, np.array([[1.0, 0.0, 0.0, 0.0]]), L, buf.rot, buf.inv, buf.omega)
+    assert np.abs(_row_speeds(buf, n_rows, v)).max() > 1e-7
+    assert contact._subspace_step(model, nc, buf, v, L)
+    assert np.abs(_row_speeds(buf, n_rows, v)).max() < 1e-12
+    assert (buf.lam[:nc, 0] > 0.0).all()
+
+
+def test_subspace_step_is_the_least_squares_impulse_change():
+    """On a stack of five cubes, one cube pushed sideways: the step's impulse changes on its 60
+    rows (before projection onto the bounds, left in `row_lam`) are the minimum-norm solution
+    of J M^-1 J^T dP = e, computed here independently with numpy's pseudo-inverse, to the
+    regularisation's bias."""
+    model, nc, buf, v, L = _settled("cube_stack")
+    v[-1, 0] += 1e-6
+    n_rows, n_bodies = contact._subspace_rows(model, nc, buf)
+    assert n_bodies == 5
+    rows, nb = buf.rows[:n_rows], v.shape[0]
+    jac = np.zeros((n_rows, 6 * nb))
+    for r, (k, d) in enumerate(rows):
+        a, b, j = buf.cands[k, 0], buf.cands[k, 2], buf.jac[k, d]
+        jac[r, 6 * a : 6 * a + 6] = np.concatenate([j[0], j[1]])
+        if b >= 0:
+            jac[r, 6 * b : 6 * b + 6] = -np.concatenate([j[0], j[3]])
+    m_inv = np.zeros((6 * nb, 6 * nb))
+    for b in range(nb):
+        m_inv[6 * b : 6 * b + 3, 6 * b : 6 * b + 3] = np.eye(3) / model.body_mass[b]
+        m_inv[6 * b + 3 : 6 * b + 6, 6 * b + 3 : 6 * b + 6] = buf.inv[b].reshape(3, 3)
+    error = -_row_speeds(buf, n_rows, v)
+    delassus = jac @ m_inv @ jac.T
+    expected = np.linalg.pinv(delassus, rcond=1e-10) @ error
+    eigenvalues = np.linalg.eigvalsh(delassus)
+    smallest = eigenvalues[eigenvalues > 1e-10 * eigenvalues.max()].min()
+    eps = contact.SUBSPACE_REGULARIZATION * buf.kn[:nc].max()
+    assert contact._subspace_step(model, nc, buf, v, L)
+    # each of the step's two solves shrinks the component along eigenvalue s by eps / (s + eps)
+    # (Tikhonov): 2 eps / smallest in all, here 1.2e-5 (measured 1.27e-5); twice that allowed
+    bias = 4.0 * eps / smallest
+    assert np.abs(buf.row_lam[:n_rows] - expected).max() < bias * np.abs(expected).max()

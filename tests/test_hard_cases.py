@@ -92,8 +92,12 @@ def test_reference_collision_conserves_momentum(integrator):
 
 @pytest.mark.parametrize("integrator", RIGID)
 def test_reference_stack_stands(integrator):
-    _, o = measured("cube_stack", "reference", integrator)
-    assert o.loc["standing", "measured"] == 1
+    scene = CATALOG["cube_stack"]
+    traj = run(scene, "reference", integrator)
+    assert outcomes(traj, scene).set_index("quantity").loc["standing", "measured"] == 1
+    # every contact solve converged (Gauss-Seidel without subspace steps left 41 of euler's
+    # 2000 at MAX_ITERATIONS)
+    assert traj.meta.solver["at_limit"] == 0
 
 
 # Regression gates: |measured - closed form| (or the measured change, where the closed form is
