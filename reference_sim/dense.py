@@ -27,8 +27,9 @@ def cholesky_into(a, n):
             a[j, k] /= d
         for i in range(j + 1, n):
             f = a[j, i]
-            for k in range(i, n):
-                a[i, k] -= f * a[j, k]
+            if f != 0.0:  # bodies that share no contact: their block stays zero
+                for k in range(i, n):
+                    a[i, k] -= f * a[j, k]
     return True
 
 
