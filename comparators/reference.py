@@ -104,11 +104,17 @@ def _contact_settings(scene: Scene, integrator: str, dt: float) -> dict:
 
 
 def _solver_report(solver) -> dict[str, float]:
-    """`RunMeta.solver` from `run_rigid`'s statistics (solves, sweeps, solves at the limit)."""
+    """`RunMeta.solver` from `run_rigid`'s statistics (solves, sweeps, solves at the limit,
+    subspace steps)."""
     if solver is None or solver[0] == 0:
         return {}
-    solves, sweeps, at_limit = (int(n) for n in solver)
-    return {"solves": solves, "sweeps_per_solve": sweeps / solves, "at_limit": at_limit}
+    solves, sweeps, at_limit, subspace = (int(n) for n in solver)
+    return {
+        "solves": solves,
+        "sweeps_per_solve": sweeps / solves,
+        "at_limit": at_limit,
+        "subspace_per_solve": subspace / solves,
+    }
 
 
 register(ReferenceEngine())

@@ -731,7 +731,7 @@ def _iterate(model, nc, buf, v, L, tolerance):
         if moved < tolerance:
             return it + 1
         if sticking and (it + 1) % SUBSPACE_EVERY == 0 and it < SUBSPACE_EVERY * SUBSPACE_STEPS:
-            _subspace_step(model, nc, buf, v, L)
+            buf.solver[3] += _subspace_step(model, nc, buf, v, L)
     return MAX_ITERATIONS
 
 
@@ -761,7 +761,8 @@ class ContactBuffers(NamedTuple):
     sweep's start. The warm start: the previous step's impulses before and after the drift,
     keys and impulses of counts[0] and counts[1] contacts, in key order. counts[2]: how many
     rows of `pairs` the caller filled for this step, or -1 to have them found pair by pair.
-    solver (3,): solves, sweeps and solves that reached MAX_ITERATIONS, summed over the run.
+    solver (4,): solves, sweeps, solves that reached MAX_ITERATIONS and subspace steps taken,
+    summed over the run.
     The subspace step (`_subspace_step`): rows (3C, 2) (contact, direction), row_jac (3C, 12)
     and row_lam (3C,) per row, slot (B,) each body's place in it (-1: not in it), normal
     (6S, 6S) and rhs (6S,), S = min(B, SUBSPACE_MAX_BODIES).
@@ -831,7 +832,7 @@ def contact_buffers(n_bodies, capacity, pair_capacity):
         np.empty(c, dtype=np.int64),
         np.zeros((c, 3)),
         counts,
-        np.zeros(3, dtype=np.int64),
+        np.zeros(4, dtype=np.int64),
         np.zeros((3 * c, 2), dtype=np.int64),
         np.zeros((3 * c, 12)),
         np.zeros(3 * c),
@@ -853,6 +854,7 @@ def _carry_over(old, new):
             new.post_lam[k, d] = old.post_lam[k, d]
     for k in range(3):
         new.counts[k] = old.counts[k]
+    for k in range(4):
         new.solver[k] = old.solver[k]
 
 

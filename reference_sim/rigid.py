@@ -238,8 +238,8 @@ def _record(model, x, q, v, L, out):
 @compiled
 def run_rigid(model, integrator, x, q, v, L, dt, n_steps, stride):
     """Step n_steps times in place; return the sampled steps (S,), samples (S, B, 13): x, q, v,
-    omega per body, and the contact solver's statistics (3,): solves, Gauss-Seidel sweeps and
-    solves that reached MAX_ITERATIONS (zeros without contact).
+    omega per body, and the contact solver's statistics (4,): solves, Gauss-Seidel sweeps,
+    solves that reached MAX_ITERATIONS and subspace steps (zeros without contact).
 
     Samples are taken at step 0, every `stride` steps, and at the last step.
     """
@@ -249,7 +249,7 @@ def run_rigid(model, integrator, x, q, v, L, dt, n_steps, stride):
     threshold = BOUNCE_STEPS * math.sqrt(dot(vec(model.gravity), vec(model.gravity))) * dt
     if not model.contact:
         _free_steps(model, integrator, x, q, v, L, dt, n_steps, stride, out, steps)
-        return steps, out, np.zeros(3, dtype=np.int64)
+        return steps, out, np.zeros(4, dtype=np.int64)
     nb = x.shape[0]
     buf = contact_buffers(nb, 8 * nb + 16, 4 * nb + 16)
     _record(model, x, q, v, L, out[0])

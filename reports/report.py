@@ -62,10 +62,17 @@ METRIC_HEADERS = {
     "shape_error": "shape error",
     "solver_sweeps": "solver sweeps per solve",
     "solver_at_limit": "solves at iteration limit",
+    "solver_subspace": "subspace steps per solve",
     "verdict": "verdict",
 }
 # columns dropped when all NaN
-SHOWN_WHERE_MEASURED = ("rest_com_height", "shape_error", "solver_sweeps", "solver_at_limit")
+SHOWN_WHERE_MEASURED = (
+    "rest_com_height",
+    "shape_error",
+    "solver_sweeps",
+    "solver_at_limit",
+    "solver_subspace",
+)
 
 CSS = """
 body { font-family: system-ui, sans-serif; max-width: 60rem; margin: 2rem auto; padding: 0 1rem;
@@ -405,8 +412,9 @@ def _pareto_sentence(runs: pd.DataFrame) -> str:
 
 SOLVER_NOTE = (
     " Solver columns are what an engine reports of its own contact solver, where it reports "
-    "anything: the reference's Gauss-Seidel sweeps per solve (two solves a step with contact) "
-    "and the solves it stopped at its iteration limit, unconverged."
+    "anything: the reference's Gauss-Seidel sweeps per solve (two solves a step with contact), "
+    "the solves it stopped at its iteration limit, unconverged, and its subspace steps per "
+    "solve (a direct solve of the contacts that push, each costing more than a sweep)."
 )
 CONTACT_ORDER_NOTE = (
     " With contact, impacts are resolved once per step, so no integrator converges faster "
