@@ -92,6 +92,8 @@ MAX_ITERATIONS = 500
 SUBSPACE_EVERY = 3
 SUBSPACE_STEPS = 5
 # The subspace is solved densely, 6 unknowns per body; more bodies than this, no subspace step.
+# It bounds the system at 96 unknowns (a 74 kB matrix, about 1.5e5 multiply-adds to factor);
+# the catalog's subspaces have at most 8 bodies (`cube_rain_8`), its stack 5.
 SUBSPACE_MAX_BODIES = 16
 # Regularisation of the subspace's equalities, relative to the largest contact inverse mass:
 # the four corners of a face make them redundant (singular), and the regularised solve picks
