@@ -185,3 +185,45 @@ def test_subspace_step_is_the_least_squares_impulse_change():
     # (Tikhonov): 2 eps / smallest in all, here 1.2e-5 (measured 1.27e-5); twice that allowed
     bias = 4.0 * eps / smallest
     assert np.abs(buf.row_lam[:n_rows] - expected).max() < bias * np.abs(expected).max()
+
+
+def _history(*steps):
+    """A warm-start list of one contact: its impulses (normal, two tangents) of the last three
+    steps, newest first, NaN for steps it did not exist."""
+    lam = np.full((1, 3, 3), np.nan)
+    for age, impulses in enumerate(steps):
+        lam[0, age] = impulses
+    return lam
+
+
+@pytest.mark.parametrize(
+    ("history", "expected"),
+    [
+        # a steady trend: continued by its last change
+        (((3.0, 0.5, -0.25), (2.0, 0.25, -0.125), (1.0, 0.0, 0.0)), (4.0, 0.75, -0.375)),
+        # changes that disagree in sign (jitter about a value): last step's impulses
+        (((2.0, 0.0, 0.0), (1.0, 0.0, 0.0), (2.0, 0.0, 0.0)), (2.0, 0.0, 0.0)),
+        # a contact two steps old has no trend yet
+        (((2.0, 0.0, 0.0), (1.0, 0.0, 0.0)), (2.0, 0.0, 0.0)),
+        # a normal impulse trending below zero stops at zero, and its friction with it
+        (((0.5, 0.25, 0.0), (1.5, 0.25, 0.0), (2.5, 0.25, 0.0)), (0.0, 0.0, 0.0)),
+        # friction trending out of the Coulomb disc (mu = 0.5) ends on its edge
+        (((1.0, 0.45, 0.0), (1.0, 0.3, 0.0), (1.0, 0.15, 0.0)), (1.0, 0.5, 0.0)),
+    ],
+)
+def test_warm_start_continues_a_steady_trend_within_the_bounds(history, expected):
+    model = model_from_scene(CATALOG["dropped_cube"])  # mu = 0.5
+    assert model.friction == 0.5
+    start = contact._trend(model, _history(*history), 0, 1.0, contact.VELOCITY_TOLERANCE)
+    np.testing.assert_allclose(start, expected, rtol=1e-15)
+
+
+def test_warm_start_does_not_extrapolate_rounding_jitter():
+    """A steady trend whose changes move a speed by less than TREND_NOISE tolerances is left
+    alone: rounding, not motion."""
+    model = model_from_scene(CATALOG["dropped_cube"])
+    tolerance = contact.VELOCITY_TOLERANCE
+    change = 0.5 * contact.TREND_NOISE * tolerance  # with kn = 1, a speed change of this much
+    history = _history((1.0 + 2 * change, 0, 0), (1.0 + change, 0, 0), (1.0, 0, 0))
+    assert contact._trend(model, history, 0, 1.0, tolerance) == (1.0 + 2 * change, 0.0, 0.0)
+    assert contact._trend(model, history, 0, 4.0, tolerance)[0] == 1.0 + 3 * change
