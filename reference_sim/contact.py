@@ -745,17 +745,13 @@ def _iterate(model, nc, buf, v, L, tolerance):
 
 
 @kernel
-def _bounces(model, x, rot, v, omega, cands, dt, bounce_threshold, bounce):
-    """-e times the approach speed of every contact that impacts within the step."""
-    for k in range(cands.shape[0]):
-        n, gap, ra, rb = contact_geometry(model, x, rot, cands, k)
-        a, b = cands[k, 0], cands[k, 2]
-        u = add(row(v, a), cross(row(omega, a), ra))
-        if b >= 0:
-            u = sub(u, add(row(v, b), cross(row(omega, b), rb)))
-        vn = dot(n, u)
-        if vn < -bounce_threshold and gap + dt * vn < IMPACT_SLACK:
-            bounce[k] = -model.restitution * vn
+def _bounces(model, v, nc, dt, bounce_threshold, buf):
+    """-e times the approach speed of every contact that impacts within the step, else 0, into
+    `buf.bounce` (needs `_assemble`'s gaps and Jacobians)."""
+    for k in range(nc):
+        vn = _speed(buf.jac[k, 0], buf.cands[k, 0], buf.cands[k, 2], v, buf.omega)
+        hits = vn < -bounce_threshold and buf.gap[k] + dt * vn < IMPACT_SLACK
+        buf.bounce[k] = -model.restitution * vn if hits else 0.0
 
 
 class ContactBuffers(NamedTuple):
@@ -1004,12 +1000,10 @@ def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
     for b in range(v.shape[0]):
         for i in range(3):
             v[b, i] += drift_gravity[i]
-    cands = buf.cands[:nc]
     for k in range(nc):
-        buf.bounce[k] = 0.0
         buf.acting[k] = True
-    _bounces(model, x, buf.rot, v, buf.omega, cands, dt, bounce_threshold, buf.bounce)
     _assemble(model, x, nc, TOUCH_TOLERANCE, buf)
+    _bounces(model, v, nc, dt, bounce_threshold, buf)
     for k in range(nc):
         gap = buf.gap[k]
         buf.target[k] = -gap / dt if gap >= 0.0 else -BAUMGARTE * gap / dt
