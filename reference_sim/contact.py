@@ -931,9 +931,10 @@ def _trend(model, warm_lam, at, kn, tolerance):
 
 @kernel
 def _warm_start(model, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance):
-    """Impulses of last step's matching contacts (`_trend`), applied again, and the impulses
-    of the two steps before into `buf.hist` for `_remember` (NaN: none). Both key lists are in
-    increasing order: one merge pass matches them."""
+    """Each contact that matches one of last step's starts from its impulses, continued along
+    their trend (`_trend`), applied; the impulses of the steps before go into `buf.hist` for
+    `_remember` (NaN: none). Both key lists are in increasing order: one merge pass matches
+    them."""
     at = 0
     for k in range(nc):
         buf.lam[k, 0], buf.lam[k, 1], buf.lam[k, 2] = 0.0, 0.0, 0.0
