@@ -10,6 +10,8 @@ from reference_sim.contact import (
     MAX_ITERATIONS,
     SUBSPACE_EVERY,
     SUBSPACE_STEPS,
+    TREND_AGREEMENT,
+    TREND_NOISE,
     solver_tolerance,
 )
 from reference_sim.model import Model, build_model, rigid_initial_state, seed_initial_state
@@ -97,6 +99,10 @@ def _contact_settings(scene: Scene, integrator: str, dt: float) -> dict:
         "friction_cone": "isotropic Coulomb disc",
         "solver": "projected Gauss-Seidel, warm-started, with subspace steps",
         "subspace_steps": f"every {SUBSPACE_EVERY} sweeps, at most {SUBSPACE_STEPS} a solve",
+        "warm_start": (
+            "last step's impulses, plus last step's change where the last two changes differ "
+            f"by less than {TREND_AGREEMENT} of it and it exceeds {TREND_NOISE:g} tolerances"
+        ),
         "iterations": MAX_ITERATIONS,
         # m/s; the kernel's Python code: stating a setting should compile nothing
         "tolerance": solver_tolerance.py_func(dt),

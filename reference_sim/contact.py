@@ -484,6 +484,16 @@ def _assemble(model, x, nc, gate, buf):
 
 
 @kernel
+def _into_disc(mu, p0, p1, p2):
+    """Friction impulse (p1, p2) scaled back onto the Coulomb disc |P_t| <= mu p0 if outside it."""
+    limit = mu * p0
+    if p1 * p1 + p2 * p2 > limit * limit:
+        shrink = limit / math.sqrt(p1 * p1 + p2 * p2)
+        p1, p2 = p1 * shrink, p2 * shrink
+    return p1, p2
+
+
+@kernel
 def _subspace_rows(model, nc, buf):
     """The subspace: rows (contact, direction) in `buf.rows` of every active contact that
     pushes, its normal, and its tangents too if it sticks; its bodies numbered in `buf.slot`.
@@ -633,10 +643,7 @@ def _subspace_step(model, nc, buf, v, L):
             p1, p2 = p1 + errors[r + 1], p2 + errors[r + 2]
             r += 2
         r += 1
-        limit = model.friction * p0
-        if p1 * p1 + p2 * p2 > limit * limit:
-            shrink = limit / math.sqrt(p1 * p1 + p2 * p2)
-            p1, p2 = p1 * shrink, p2 * shrink
+        p1, p2 = _into_disc(model.friction, p0, p1, p2)
         a_k, b_k = buf.cands[k, 0], buf.cands[k, 2]
         for d, p in ((0, p0), (1, p1), (2, p2)):
             if p != new[d]:
@@ -922,10 +929,7 @@ def _trend(model, warm_lam, at, kn, tolerance):
     p0 = max(2.0 * last[0] - warm_lam[at, 1, 0], 0.0)
     p1 = 2.0 * last[1] - warm_lam[at, 1, 1]
     p2 = 2.0 * last[2] - warm_lam[at, 1, 2]
-    limit = model.friction * p0
-    if p1 * p1 + p2 * p2 > limit * limit:
-        shrink = limit / math.sqrt(p1 * p1 + p2 * p2)
-        p1, p2 = p1 * shrink, p2 * shrink
+    p1, p2 = _into_disc(model.friction, p0, p1, p2)
     return p0, p1, p2
 
 
