@@ -437,15 +437,23 @@ def _invert3(m):
 
 
 @kernel
-def _assemble(model, x, nc, gate, buf):
+def _assemble(model, x, nc, gate, buf, reuse):
     """Per candidate k < nc of `buf`: its gap, whether it acts (`buf.acting[k]`, or its gap is
-    at most `gate`), its Jacobian rows and its normal and tangent inverse masses."""
+    at most `gate`), its Jacobian rows and its normal and tangent inverse masses.
+
+    With `reuse`, a row that already holds them for the same contact at the bodies' current
+    pose (`buf.made[k] == buf.keys[k]`) keeps them: they are what this would compute, bit for
+    bit. Records in `buf.made` which rows it assembled."""
     cands, inv, jac, kn, kt, kt_inv = buf.cands, buf.inv, buf.jac, buf.kn, buf.kt, buf.kt_inv
     k_inv = buf.k_inv
     for k in range(nc):
+        if reuse and buf.made[k] == buf.keys[k]:
+            buf.active[k] = buf.acting[k] or buf.gap[k] <= gate
+            continue
         a, b = cands[k, 0], cands[k, 2]
         n, buf.gap[k], ra, rb = contact_geometry(model, x, buf.rot, cands, k)
         buf.active[k] = buf.acting[k] or buf.gap[k] <= gate
+        buf.made[k] = buf.keys[k] if buf.active[k] else -1
         if not buf.active[k]:
             continue
         t1, t2 = _tangents(n)
@@ -772,10 +780,12 @@ class ContactBuffers(NamedTuple):
     cands (C, 4), keys (C,) (increasing), jac (C, 3, 5, 3), kn (C,), kt and kt_inv (C, 4)
     (2 x 2 row major), k_inv (C, 9) (the inverse 3 x 3 mass of normal and tangents, row major),
     gap, target, bounce (C,), active, acting (C,), lam (C, 3), hist (C, 2, 3) (its impulses of
-    the two steps before, NaN: none); bodies (B, 6), v and omega at a sweep's start. The warm
-    start: keys and impulses of the last three steps (C, 3, 3) (age, direction) before and after
-    the drift, of counts[0] and counts[1] contacts, in key order. counts[2]: how many
-    rows of `pairs` the caller filled for this step, or -1 to have them found pair by pair.
+    the two steps before, NaN: none), made (C,) (the key of the contact whose gap, rows and
+    inverse masses row k holds, -1: none; they hold for the current pose while counts[3] is 1);
+    bodies (B, 6), v and omega at a sweep's start. The warm start: keys and impulses of the last
+    three steps (C, 3, 3) (age, direction) before and after the drift, of counts[0] and
+    counts[1] contacts, in key order. counts[2]: how many rows of `pairs` the caller filled for
+    this step, or -1 to have them found pair by pair.
     solver (4,): solves, sweeps, solves that reached MAX_ITERATIONS and subspace steps taken,
     summed over the run.
     The subspace step (`_subspace_step`): rows (3C, 2) (contact, direction), row_jac (3C, 12)
@@ -801,6 +811,7 @@ class ContactBuffers(NamedTuple):
     acting: np.ndarray
     lam: np.ndarray
     hist: np.ndarray
+    made: np.ndarray
     k_inv: np.ndarray
     bodies: np.ndarray
     pre_keys: np.ndarray
@@ -821,7 +832,7 @@ class ContactBuffers(NamedTuple):
 def contact_buffers(n_bodies, capacity, pair_capacity):
     """Empty buffers for `capacity` candidates and `pair_capacity` body pairs."""
     c, s = capacity, min(n_bodies, SUBSPACE_MAX_BODIES)
-    counts = np.zeros(3, dtype=np.int64)
+    counts = np.zeros(4, dtype=np.int64)
     counts[2] = -1
     return ContactBuffers(
         np.empty((n_bodies, 9)),
@@ -842,6 +853,7 @@ def contact_buffers(n_bodies, capacity, pair_capacity):
         np.zeros(c, dtype=np.bool_),
         np.zeros((c, 3)),
         np.zeros((c, 2, 3)),
+        np.full(c, -1, dtype=np.int64),
         np.zeros((c, 9)),
         np.zeros((n_bodies, 6)),
         np.empty(c, dtype=np.int64),
@@ -871,7 +883,7 @@ def _carry_over(old, new):
         for age in range(3):
             for d in range(3):
                 new.post_lam[k, age, d] = old.post_lam[k, age, d]
-    for k in range(3):
+    for k in range(3):  # not counts[3]: the new buffers hold no assembled rows
         new.counts[k] = old.counts[k]
     for k in range(4):
         new.solver[k] = old.solver[k]
@@ -1009,7 +1021,8 @@ def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
             v[b, i] += drift_gravity[i]
     for k in range(nc):
         buf.acting[k] = True
-    _assemble(model, x, nc, TOUCH_TOLERANCE, buf)
+    # the bodies have not moved since the last step's `after_drift` assembled its contacts
+    _assemble(model, x, nc, TOUCH_TOLERANCE, buf, buf.counts[3] == 1)
     _bounces(model, v, nc, dt, bounce_threshold, buf)
     for k in range(nc):
         gap = buf.gap[k]
@@ -1031,7 +1044,8 @@ def after_drift(model, x, q, v, L, nc, dt, buf):
     (`buf.acting`) or touch now (gap below TOUCH_TOLERANCE): the bounce targets of
     `before_drift`, else inelastic (normal speed >= 0, and friction). Changes v and L."""
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
-    _assemble(model, x, nc, TOUCH_TOLERANCE, buf)
+    _assemble(model, x, nc, TOUCH_TOLERANCE, buf, False)
+    buf.counts[3] = 1  # until the next drift
     for k in range(nc):
         buf.target[k] = buf.bounce[k]
     _solve(model, v, L, nc, dt, buf, buf.post_keys, buf.post_lam, buf.counts[1])

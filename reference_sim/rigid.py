@@ -170,6 +170,7 @@ def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, buf):
         return nc
     _kick(model, integrator, v, dt)
     if nc == 0:
+        buf.counts[3] = 0  # the drift moves the bodies from under the assembled contacts
         _drift(model, integrator, x, q, v, L, dt)
         return 0
     # the drift moves euler's bodies with v, the others' with v + g dt / 2
