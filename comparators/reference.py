@@ -8,7 +8,6 @@ from comparators.parity import body_readback
 from comparators.trajectory import RunMeta, Trajectory, package_versions
 from reference_sim.contact import (
     MAX_ITERATIONS,
-    SUBSPACE_EVERY,
     SUBSPACE_STEPS,
     TREND_AGREEMENT,
     TREND_NOISE,
@@ -98,7 +97,7 @@ def _contact_settings(scene: Scene, integrator: str, dt: float) -> dict:
         "contact": "impulses only: speculative before the drift, bounce and rest after it",
         "friction_cone": "isotropic Coulomb disc",
         "solver": "projected Gauss-Seidel, warm-started, with subspace steps",
-        "subspace_steps": f"every {SUBSPACE_EVERY} sweeps, at most {SUBSPACE_STEPS} a solve",
+        "subspace_steps": f"after each of a solve's first {SUBSPACE_STEPS} unconverged sweeps",
         "warm_start": (
             "last step's impulses, plus last step's change where the last two changes differ "
             f"by less than {TREND_AGREEMENT} of it and it exceeds {TREND_NOISE:g} tolerances"
