@@ -8,6 +8,7 @@ from comparators.parity import body_readback
 from comparators.trajectory import RunMeta, Trajectory, package_versions
 from reference_sim.contact import (
     MAX_ITERATIONS,
+    SUBSPACE_FIRST,
     SUBSPACE_STEPS,
     TREND_AGREEMENT,
     TREND_NOISE,
@@ -97,7 +98,8 @@ def _contact_settings(scene: Scene, integrator: str, dt: float) -> dict:
         "contact": "impulses only: speculative before the drift, bounce and rest after it",
         "friction_cone": "isotropic Coulomb disc",
         "solver": "projected Gauss-Seidel, warm-started, with subspace steps",
-        "subspace_steps": f"after each of a solve's first {SUBSPACE_STEPS} unconverged sweeps",
+        "subspace_steps": f"after unconverged sweeps {SUBSPACE_FIRST} to "
+        f"{SUBSPACE_FIRST + SUBSPACE_STEPS - 1} of a solve",
         "warm_start": (
             "last step's impulses, plus last step's change where the last two changes differ "
             f"by less than {TREND_AGREEMENT} of it and it exceeds {TREND_NOISE:g} tolerances"

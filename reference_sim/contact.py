@@ -80,17 +80,22 @@ GAP_ROUNDING = 1e-14
 MAX_ITERATIONS = 500
 # Subspace steps (projected Gauss-Seidel with subspace minimisation, after Silcowitz, Niebe and
 # Erleben 2010): Gauss-Seidel removes a stack's tilting mode, where every level turns at the same
-# rate, by well under 1 % a sweep. After each of a solve's first SUBSPACE_STEPS sweeps that has
-# not converged, the contacts that push (normal, and friction too where it sticks) are solved
-# together, directly, then projected onto the impulses' bounds; sweeps go on and still decide
-# convergence. Measured on `cube_stack` (`euler`, dt 0.01), sweeps and steps in the whole run:
-# 218,700 sweeps and 41 solves at MAX_ITERATIONS without steps; a step after every third sweep,
-# at most 5 a solve: 8,200 and 767 steps; after each of the first 5 sweeps: 3,300 and 564; of
-# the first 2: 3,500 and 428, and `dropped_cube` 1,800 sweeps instead of 6,400 without steps.
+# rate, by well under 1 % a sweep. After each of a solve's sweeps SUBSPACE_FIRST to
+# SUBSPACE_FIRST + SUBSPACE_STEPS - 1 that has not converged, the contacts that push (normal,
+# and friction too where it sticks) are solved together, directly, then projected onto the
+# impulses' bounds; sweeps go on and still decide convergence. Measured on `cube_stack`
+# (`euler`, dt 0.01), sweeps and steps in the whole run: 218,700 sweeps and 41 solves at
+# MAX_ITERATIONS without steps; a step after every third sweep, at most 5: 8,200 and 767 steps;
+# after sweeps 2 to 6: 5,400 and 705 (dt 0.0025: 21,000 sweeps instead of 34,800), and
+# `dropped_cube` 1,800 sweeps instead of 6,400 without steps. Not after the first sweep: the step
+# then fixes the first sweep's lopsided impulses, and a cube set on a floor rests on two diagonal
+# corners, their friction pushing them together at 60 % of the cone (3,300 sweeps and 564
+# steps; with 2 steps, 3,500 and 428, but the stack's cold start no longer converges to 1e-14).
 # Without a cap, post-drift solves could cycle between a step and its projection up to the limit
 # (4 solves). No step when every pushing contact slides: their friction is held fixed, and it
 # is what the sweeps are still adjusting (`incline`: 14 % fewer sweeps, each step 1.3x slower).
-SUBSPACE_STEPS = 2
+SUBSPACE_FIRST = 2
+SUBSPACE_STEPS = 5
 # The subspace is solved densely, 6 unknowns per body; more bodies than this, no subspace step.
 # It bounds the system at 96 unknowns (a 74 kB matrix, about 1.5e5 multiply-adds to factor);
 # the catalog's subspaces have at most 8 bodies (`cube_rain_8`), its stack 5.
@@ -674,8 +679,8 @@ def _iterate(model, nc, buf, v, L, tolerance):
     1e-18 m/s; it takes 10100 sweeps in all instead of 14800). The velocities then meet each
     contact's target to within that disagreement.
     A body's velocity change is |dv| + bound radius |d omega|, its fastest surface point's.
-    A subspace step (`_subspace_step`) follows each of the first SUBSPACE_STEPS sweeps if it has
-    not converged and a contact stuck in it."""
+    A subspace step (`_subspace_step`) follows each of the sweeps SUBSPACE_FIRST to
+    SUBSPACE_FIRST + SUBSPACE_STEPS - 1 if it has not converged and a contact stuck in it."""
     cands, active, jac, kn, kt, kt_inv = buf.cands, buf.active, buf.jac, buf.kn, buf.kt, buf.kt_inv
     target, omega, lam, bodies = buf.target, buf.omega, buf.lam, buf.bodies
     radius = model.bound_radius
@@ -756,7 +761,7 @@ def _iterate(model, nc, buf, v, L, tolerance):
             moved = max(moved, dv + radius[b] * dw)
         if moved < tolerance:
             return it + 1
-        if sticking and it < SUBSPACE_STEPS:
+        if sticking and SUBSPACE_FIRST <= it + 1 < SUBSPACE_FIRST + SUBSPACE_STEPS:
             buf.solver[3] += _subspace_step(model, nc, buf, v, L)
     return MAX_ITERATIONS
 
