@@ -98,8 +98,10 @@ def _contact_settings(scene: Scene, integrator: str, dt: float) -> dict:
         "contact": "impulses only: speculative before the drift, bounce and rest after it",
         "friction_cone": "isotropic Coulomb disc",
         "solver": "projected Gauss-Seidel, warm-started, with subspace steps",
-        "subspace_steps": f"after unconverged sweeps {SUBSPACE_FIRST} to "
-        f"{SUBSPACE_FIRST + SUBSPACE_STEPS - 1} of a solve",
+        "subspace_steps": (
+            f"after unconverged sweeps {SUBSPACE_FIRST} to "
+            f"{SUBSPACE_FIRST + SUBSPACE_STEPS - 1} of a solve"
+        ),
         "warm_start": (
             "last step's impulses, plus last step's change where the last two changes differ "
             f"by less than {TREND_AGREEMENT} of it and it exceeds {TREND_NOISE:g} tolerances"

@@ -786,7 +786,8 @@ class ContactBuffers(NamedTuple):
     (2 x 2 row major), k_inv (C, 9) (the inverse 3 x 3 mass of normal and tangents, row major),
     gap, target, bounce (C,), active, acting (C,), lam (C, 3), hist (C, 2, 3) (its impulses of
     the two steps before, NaN: none), made (C,) (the key of the contact whose gap, rows and
-    inverse masses row k holds, -1: none; they hold for the current pose while counts[3] is 1);
+    inverse masses row k holds, -1: none; they hold for the current pose while counts[3] is 1:
+    `after_drift` sets it, every drift clears it);
     bodies (B, 6), v and omega at a sweep's start. The warm start: keys and impulses of the last
     three steps (C, 3, 3) (age, direction) before and after the drift, of counts[0] and
     counts[1] contacts, in key order. counts[2]: how many rows of `pairs` the caller filled for

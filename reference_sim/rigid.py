@@ -182,6 +182,7 @@ def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, buf):
             0.5 * dt * model.gravity[2],
         )
     before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf)
+    buf.counts[3] = 0  # as above; `after_drift` assembles the new pose
     _drift(model, integrator, x, q, v, L, dt)
     after_drift(model, x, q, v, L, nc, dt, buf)
     return 0
