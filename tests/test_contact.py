@@ -84,13 +84,13 @@ def test_gauss_seidel_ends_on_targets_no_rigid_motion_meets():
     buf.target[:nc] = (0.0, 0.0, 0.0, disagreement)
     v += scene.dt * model.gravity
     tolerance = contact.VELOCITY_TOLERANCE
-    sweeps = contact._iterate(model, nc, buf, v, L, tolerance)
+    sweeps = contact._iterate(model, nc, buf, v, L, tolerance, contact.IDLE_MARGIN)
     assert sweeps < contact.MAX_ITERATIONS
     for k in range(nc):
         speed = contact._speed(buf.jac[k, 0], buf.cands[k, 0], buf.cands[k, 2], v, buf.omega)
         assert speed > buf.target[k] - disagreement
     before = np.concatenate([v.ravel(), buf.omega.ravel()])
-    contact._iterate(model, nc, buf, v, L, np.inf)  # one sweep
+    contact._iterate(model, nc, buf, v, L, np.inf, contact.IDLE_MARGIN)  # one sweep
     after = np.concatenate([v.ravel(), buf.omega.ravel()])
     # |dv| + bound radius |d omega|, as the stopping test measures it
     assert np.abs(after - before).max() * (1.0 + model.bound_radius[0]) < tolerance
@@ -117,7 +117,9 @@ def _settled(name, friction=None):
     contact._assemble(model, x, nc, contact.TOUCH_TOLERANCE, buf, False)
     buf.target[:nc] = 0.0
     v += scene.dt * model.gravity
-    assert contact._iterate(model, nc, buf, v, L, 1e-14) < contact.MAX_ITERATIONS
+    assert (
+        contact._iterate(model, nc, buf, v, L, 1e-14, contact.IDLE_MARGIN) < contact.MAX_ITERATIONS
+    )
     return model, nc, buf, v, L
 
 
