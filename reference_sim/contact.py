@@ -425,12 +425,14 @@ def _speed(rows, a, b, v, omega):
 def _push(model, rows, a, b, v, L, omega, lam):
     """Apply the impulse lam along the direction of Jacobian `rows` to both bodies
     (dL = r x P)."""
+    along_a = lam / model.body_mass[a]
+    along_b = lam / model.body_mass[b] if b >= 0 else 0.0
     for i in range(3):
-        v[a, i] += lam * rows[0, i] / model.body_mass[a]
+        v[a, i] += along_a * rows[0, i]
         L[a, i] += lam * rows[1, i]
         omega[a, i] += lam * rows[2, i]
         if b >= 0:
-            v[b, i] -= lam * rows[0, i] / model.body_mass[b]
+            v[b, i] -= along_b * rows[0, i]
             L[b, i] -= lam * rows[3, i]
             omega[b, i] -= lam * rows[4, i]
 
