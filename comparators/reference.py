@@ -7,6 +7,7 @@ from comparators.engine import register
 from comparators.parity import body_readback
 from comparators.trajectory import RunMeta, Trajectory, package_versions
 from reference_sim.contact import (
+    IDLE_MARGIN,
     MAX_ITERATIONS,
     SUBSPACE_FIRST,
     SUBSPACE_STEPS,
@@ -105,6 +106,10 @@ def _contact_settings(scene: Scene, integrator: str, dt: float) -> dict:
         "warm_start": (
             "last step's impulses, plus last step's change where the last two changes differ "
             f"by less than {TREND_AGREEMENT} of it and it exceeds {TREND_NOISE:g} tolerances"
+        ),
+        "idle_contacts": (
+            f"skipped by sweeps while not pushing and more than {IDLE_MARGIN:g} times the last "
+            "sweep's largest speed change from their target, until the rest converge"
         ),
         "iterations": MAX_ITERATIONS,
         # m/s; the kernel's Python code: stating a setting should compile nothing
