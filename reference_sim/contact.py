@@ -144,7 +144,7 @@ def world_omega(model, q, L, b):
     return mat_vec(r, mat_vec(mat(model.inertia0_inv, b), mat_t_vec(r, L)))
 
 
-@kernel
+@inlined_kernel
 def frames_into(model, q, L, rot, inv, omega):
     for b in range(q.shape[0]):
         r = qmatrix((q[b, 0], q[b, 1], q[b, 2], q[b, 3]))
@@ -452,7 +452,7 @@ def _invert3(m):
     m[6], m[7], m[8] = c02 * scale, c12 * scale, c22 * scale
 
 
-@kernel
+@inlined_kernel
 def _assemble(model, x, nc, gate, buf, reuse):
     """Per candidate k < nc of `buf`: its gap, whether it acts (`buf.acting[k]`, or its gap is
     at most `gate`), its Jacobian rows and its normal and tangent inverse masses.
@@ -795,7 +795,7 @@ def _regroup(buf, n_busy, n_idle, margin, rejoin):
     return n, n_idle
 
 
-@kernel
+@inlined_kernel
 def _iterate(model, nc, buf, v, L, tolerance, idle_margin):
     """Gauss-Seidel sweeps until no impulse changes a speed by `tolerance` (m/s), or no body's
     velocity changes by that much over a sweep; returns the sweeps used.
@@ -829,16 +829,19 @@ def _iterate(model, nc, buf, v, L, tolerance, idle_margin):
         for b in range(v.shape[0]):
             for i in range(3):
                 bodies[b, i], bodies[b, 3 + i] = v[b, i], omega[b, i]
-        for m in range(n_busy):
-            change, sticks = _update(model, buf, order[m], v, L, change)
-            sticking = sticking or sticks
-        converged = change < tolerance or _moved(model, v, omega, bodies) < tolerance
-        rejoin = n_idle > 0 and converged  # the idle contacts decide
-        if rejoin:
-            for m in range(n_idle):
-                change, sticks = _update(model, buf, order[end - m], v, L, change)
+        # the busy contacts, then the idle ones if the busy ones pass the stopping test (one
+        # loop: `_update` is inlined once)
+        rejoin, m, stop = False, 0, n_busy
+        while True:
+            while m < stop:
+                k = order[m] if m < n_busy else order[end - (m - n_busy)]
+                change, sticks = _update(model, buf, k, v, L, change)
                 sticking = sticking or sticks
+                m += 1
             converged = change < tolerance or _moved(model, v, omega, bodies) < tolerance
+            if rejoin or not converged or n_idle == 0:
+                break
+            rejoin, stop = True, n_busy + n_idle
         if converged:
             return it + 1
         n_busy, n_idle = _regroup(buf, n_busy, n_idle, idle_margin * change, rejoin)
@@ -847,7 +850,7 @@ def _iterate(model, nc, buf, v, L, tolerance, idle_margin):
     return MAX_ITERATIONS
 
 
-@kernel
+@inlined_kernel
 def _bounces(model, v, nc, dt, bounce_threshold, buf):
     """-e times the approach speed of every contact that impacts within the step, else 0, into
     `buf.bounce` (needs `_assemble`'s gaps and Jacobians)."""
@@ -991,7 +994,7 @@ def grown(buf, capacity, pair_capacity):
     return new
 
 
-@kernel
+@inlined_kernel
 def find_candidates_into(model, x, v, dt, kick, buf):
     """The step's contact candidates into `buf`: rows (body a, particle i, body b or -1,
     particle j or plane index) of the contacts that could touch within the step, given the
@@ -1038,7 +1041,7 @@ def _trend(model, warm_lam, at, kn, tolerance):
     return p0, p1, p2
 
 
-@kernel
+@inlined_kernel
 def _warm_start(model, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance):
     """Each contact that matches one of last step's starts from its impulses, continued along
     their trend (`_trend`), applied; the impulses of the steps before go into `buf.hist` for
@@ -1065,7 +1068,7 @@ def _warm_start(model, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance):
                     _push(model, buf.jac[k, d], a, b, v, L, buf.omega, lam)
 
 
-@kernel
+@inlined_kernel
 def _remember(nc, buf, keep, keys, lam):
     """Keys and impulses of the contacts flagged in `keep`, in key order, for the next step,
     with their impulses of the two steps before (`buf.hist`); returns how many."""

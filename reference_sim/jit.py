@@ -1,4 +1,4 @@
-"""How the simulator is compiled: two numba decorators.
+"""How the simulator is compiled: three numba decorators.
 
 `compiled` functions may allocate arrays. `kernel` functions allocate nothing and are compiled
 without numba's reference counting: in a counted function every call that passes arrays (the
@@ -12,8 +12,13 @@ from numba import njit
 
 compiled = njit(cache=True)
 kernel = njit(cache=True, _nrt=False)
-# Kernels with a single caller in the step loop, inlined into it by numba rather than compiled on
-# their own: numba optimises every compiled function together with all it calls, so each level
-# of a deep call chain optimises the code below it again (measured: run_rigid, _steps and
-# rigid_step each took 3-6 s of the ~47 s compile, mostly optimising the contact code again).
+# Kernels inlined by numba into each caller rather than called. A call passes every array of a
+# `Model` (14) or `ContactBuffers` (35) argument by value, each as several words on the stack:
+# in a step's dozen such calls the copying took about a fifth of a contact step and half of a
+# free-flight one (`free_spin_cube` `euler` 196 -> 96 ns a step with the drift inlined;
+# `incline` 2.93 -> 2.26 us with the solver's and assembly's calls inlined too). Each inlined
+# copy is compiled again: the contact code's compile grew from about 58 to 88 s (one process).
+# Also for kernels with a single caller: numba optimises every compiled function together with
+# all it calls, so each level of a deep call chain optimises the code below it again
+# (measured: run_rigid, _steps and rigid_step each took 3-6 s of the ~47 s compile).
 inlined_kernel = njit(cache=True, _nrt=False, inline="always")

@@ -108,9 +108,9 @@ def _store_quat(out, b, q):
     out[b, 0], out[b, 1], out[b, 2], out[b, 3] = q
 
 
-@kernel
+@inlined_kernel
 def _drift(model, integrator, x, q, v, L, dt):
-    """The integrator's contact-free update of every body, in place."""
+    """The integrator's contact-free update of every body, in place (inlined: `jit`)."""
     g = model.gravity
     for b in range(x.shape[0]):
         qb, lb = (q[b, 0], q[b, 1], q[b, 2], q[b, 3]), row(L, b)
@@ -143,13 +143,6 @@ def _kick(model, integrator, v, dt):
                 v[b, i] += dt * model.gravity[i]
 
 
-@kernel
-def _free_step(model, integrator, x, q, v, L, dt):
-    """A step without contact."""
-    _kick(model, integrator, v, dt)
-    _drift(model, integrator, x, q, v, L, dt)
-
-
 @inlined_kernel
 def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, buf):
     """Advance every body by dt in place; contact impulses before and after the drift.
@@ -158,33 +151,30 @@ def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, buf):
     them, and last step's impulses for the warm start. Returns 0, or (if `buf` is too small,
     before changing anything) the candidates' count it needs, or minus the body pairs' count.
     """
-    if not model.contact:
-        _free_step(model, integrator, x, q, v, L, dt)
-        return 0
-    frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
-    kick = (0.0, 0.0, 0.0)
-    if integrator == EULER and model.gravity_on:
-        kick = (dt * model.gravity[0], dt * model.gravity[1], dt * model.gravity[2])
-    nc = find_candidates_into(model, x, v, dt, kick, buf)
-    if nc < 0 or nc > buf.cands.shape[0]:
-        return nc
+    nc = 0
+    if model.contact:
+        frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
+        kick = (0.0, 0.0, 0.0)
+        if integrator == EULER and model.gravity_on:
+            kick = (dt * model.gravity[0], dt * model.gravity[1], dt * model.gravity[2])
+        nc = find_candidates_into(model, x, v, dt, kick, buf)
+        if nc < 0 or nc > buf.cands.shape[0]:
+            return nc
     _kick(model, integrator, v, dt)
-    if nc == 0:
-        buf.counts[3] = 0  # the drift moves the bodies from under the assembled contacts
-        _drift(model, integrator, x, q, v, L, dt)
-        return 0
-    # the drift moves euler's bodies with v, the others' with v + g dt / 2
-    drift_gravity = (0.0, 0.0, 0.0)
-    if integrator != EULER:
-        drift_gravity = (
-            0.5 * dt * model.gravity[0],
-            0.5 * dt * model.gravity[1],
-            0.5 * dt * model.gravity[2],
-        )
-    before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf)
-    buf.counts[3] = 0  # as above; `after_drift` assembles the new pose
+    if nc > 0:
+        # the drift moves euler's bodies with v, the others' with v + g dt / 2
+        drift_gravity = (0.0, 0.0, 0.0)
+        if integrator != EULER:
+            drift_gravity = (
+                0.5 * dt * model.gravity[0],
+                0.5 * dt * model.gravity[1],
+                0.5 * dt * model.gravity[2],
+            )
+        before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf)
+    buf.counts[3] = 0  # the drift moves the bodies from under any assembled contacts
     _drift(model, integrator, x, q, v, L, dt)
-    after_drift(model, x, q, v, L, nc, dt, buf)
+    if nc > 0:
+        after_drift(model, x, q, v, L, nc, dt, buf)
     return 0
 
 
@@ -294,7 +284,8 @@ def _free_steps(model, integrator, x, q, v, L, dt, n_steps, stride, out, steps):
     steps[0] = 0
     s = 1
     for n in range(1, n_steps + 1):
-        _free_step(model, integrator, x, q, v, L, dt)
+        _kick(model, integrator, v, dt)
+        _drift(model, integrator, x, q, v, L, dt)
         if n % stride == 0 or n == n_steps:
             _record(model, x, q, v, L, out[s])
             steps[s] = n
