@@ -90,7 +90,8 @@ def simulate(
 # Parts of the simulator that compile independently; the stages of one group run in order
 # (the later ones load the earlier ones' code from numba's cache), the groups in parallel
 # processes. CPU seconds measured on 2 busy cores: seed ~40, contact ~30, rigid ~22 (with the
-# contact code cached): the seed alone takes about as long as the other two.
+# contact code cached); on an idle core since the solver and assembly are inlined into the step
+# (`reference_sim/jit.py`), contact 41 and rigid 61: that group now takes the longest.
 COMPILE_GROUPS = (("seed",), ("contact", "rigid"))
 COMPILE_STAGES = tuple(stage for group in COMPILE_GROUPS for stage in group)
 
