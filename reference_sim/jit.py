@@ -17,7 +17,8 @@ kernel = njit(cache=True, _nrt=False)
 # in a step's dozen such calls the copying took about a fifth of a contact step and half of a
 # free-flight one (`free_spin_cube` `euler` 196 -> 96 ns a step with the drift inlined;
 # `incline` 2.93 -> 2.26 us with the solver's and assembly's calls inlined too). Each inlined
-# copy is compiled again: the contact code's compile grew from about 58 to 88 s (one process).
+# copy is compiled again: the contact and rigid stages (`simulate.compile_stage`) now take 41
+# and 61 s of CPU, about 30 and 22 before.
 # Also for kernels with a single caller: numba optimises every compiled function together with
 # all it calls, so each level of a deep call chain optimises the code below it again
 # (measured: run_rigid, _steps and rigid_step each took 3-6 s of the ~47 s compile).
