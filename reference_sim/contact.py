@@ -453,17 +453,19 @@ def _invert3(m):
 
 
 @inlined_kernel
-def _assemble(model, x, nc, gate, buf, reuse):
+def _assemble(model, x, nc, gate, buf, kept):
     """Per candidate k < nc of `buf`: its gap, whether it acts (`buf.acting[k]`, or its gap is
     at most `gate`), its Jacobian rows and its normal and tangent inverse masses.
 
-    With `reuse`, a row that already holds them for the same contact at the bodies' current
-    pose (`buf.made[k] == buf.keys[k]`) keeps them: they are what this would compute, bit for
-    bit. Records in `buf.made` which rows it assembled."""
+    A row k < `kept` that already holds them for the same contact (`buf.made[k] ==
+    buf.keys[k]`) keeps them: the caller vouches that rows below `kept` were assembled at the
+    bodies' current pose, so they are what this would compute, bit for bit. (A row past them
+    may hold the same contact assembled at an older pose.) Records in `buf.made` which rows
+    it assembled."""
     cands, inv, jac, kn, kt, kt_inv = buf.cands, buf.inv, buf.jac, buf.kn, buf.kt, buf.kt_inv
     k_inv = buf.k_inv
     for k in range(nc):
-        if reuse and buf.made[k] == buf.keys[k]:
+        if k < kept and buf.made[k] == buf.keys[k]:
             buf.active[k] = buf.acting[k] or buf.gap[k] <= gate
             continue
         a, b = cands[k, 0], cands[k, 2]
@@ -870,7 +872,7 @@ class ContactBuffers(NamedTuple):
     (2 x 2 row major), k_inv (C, 9) (the inverse 3 x 3 mass of normal and tangents, row major),
     gap, target, bounce (C,), active, acting (C,), lam (C, 3), hist (C, 2, 3) (its impulses of
     the two steps before, NaN: none), made (C,) (the key of the contact whose gap, rows and
-    inverse masses row k holds, -1: none; they hold for the current pose while counts[3] is 1:
+    inverse masses row k holds, -1: none; rows below counts[3] hold them for the current pose:
     `after_drift` sets it, every drift clears it), slack (C,) (its normal speed above its target
     when it does not push, -inf when it does), busy (2C,) (`_iterate`'s contacts: busy ones from
     the start, idle ones from the end);
@@ -1118,7 +1120,7 @@ def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
     for k in range(nc):
         buf.acting[k] = True
     # the bodies have not moved since the last step's `after_drift` assembled its contacts
-    _assemble(model, x, nc, TOUCH_TOLERANCE, buf, buf.counts[3] == 1)
+    _assemble(model, x, nc, TOUCH_TOLERANCE, buf, buf.counts[3])
     _bounces(model, v, nc, dt, bounce_threshold, buf)
     for k in range(nc):
         gap = buf.gap[k]
@@ -1140,8 +1142,8 @@ def after_drift(model, x, q, v, L, nc, dt, buf):
     (`buf.acting`) or touch now (gap below TOUCH_TOLERANCE): the bounce targets of
     `before_drift`, else inelastic (normal speed >= 0, and friction). Changes v and L."""
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
-    _assemble(model, x, nc, TOUCH_TOLERANCE, buf, False)
-    buf.counts[3] = 1  # until the next drift
+    _assemble(model, x, nc, TOUCH_TOLERANCE, buf, 0)
+    buf.counts[3] = nc  # rows for the current pose, until the next drift
     for k in range(nc):
         buf.target[k] = buf.bounce[k]
     _solve(model, v, L, nc, dt, buf, buf.post_keys, buf.post_lam, buf.counts[1])

@@ -79,7 +79,7 @@ def test_gauss_seidel_ends_on_targets_no_rigid_motion_meets():
     nc = contact.find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
     assert nc == 4  # the bottom face's corners
     buf.acting[:nc] = True
-    contact._assemble(model, x, nc, contact.TOUCH_TOLERANCE, buf, False)
+    contact._assemble(model, x, nc, contact.TOUCH_TOLERANCE, buf, 0)
     disagreement = 1e-5
     buf.target[:nc] = (0.0, 0.0, 0.0, disagreement)
     v += scene.dt * model.gravity
@@ -114,7 +114,7 @@ def _settled(name, friction=None):
     contact.frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
     nc = contact.find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
     buf.acting[:nc] = True
-    contact._assemble(model, x, nc, contact.TOUCH_TOLERANCE, buf, False)
+    contact._assemble(model, x, nc, contact.TOUCH_TOLERANCE, buf, 0)
     buf.target[:nc] = 0.0
     v += scene.dt * model.gravity
     assert (
