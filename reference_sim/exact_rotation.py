@@ -54,7 +54,7 @@ import math
 import numpy as np
 
 from reference_sim.jit import kernel
-from reference_sim.quaternion import qmul
+from reference_sim.quaternion import qfrom_matrix, qmul
 
 # Principal moments closer than this (relative to the largest) are taken as equal, selecting the
 # isotropic or axisymmetric closed form (exactly equal moments are a 0/0 in the elliptic
@@ -290,26 +290,6 @@ def _qexp(vx, vy, vz):
 
 
 @kernel
-def _quat_from_frame(m00, m01, m02, m10, m11, m12, m20, m21, m22):
-    """Unit quaternion of the rotation matrix m (rows m0*, m1*, m2*), Shepperd's method."""
-    tr = m00 + m11 + m22
-    if tr >= m00 and tr >= m11 and tr >= m22:
-        s = 2.0 * math.sqrt(1.0 + tr)
-        w, x, y, z = 0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s
-    elif m00 >= m11 and m00 >= m22:
-        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
-        w, x, y, z = (m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s
-    elif m11 >= m22:
-        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
-        w, x, y, z = (m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s
-    else:
-        s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
-        w, x, y, z = (m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    return w / n, x / n, y / n, z / n
-
-
-@kernel
 def _euler_b(p1, p2, p3):
     """Quaternion of B(pi) = Rx(theta) Rz(psi), the rotation taking pi to |pi| z."""
     theta = math.atan2(math.sqrt(p1 * p1 + p2 * p2), p3)
@@ -513,16 +493,18 @@ def exact_rotation(q, L, moments, axes, dt):
         return _signed_unit(out, qw, qx, qy, qz)
     d = _principal_step(p1, p2, p3, i1, i2, i3, sep, l_norm, dt)
     # The principal frame P as a rotation of the body frame: columns f1 e1, f2 e2, f3 e3.
-    pw, px, py, pz = _quat_from_frame(
-        f1 * e1x,
-        f2 * e2x,
-        f3 * e3x,
-        f1 * e1y,
-        f2 * e2y,
-        f3 * e3y,
-        f1 * e1z,
-        f2 * e2z,
-        f3 * e3z,
+    pw, px, py, pz = qfrom_matrix(
+        (
+            f1 * e1x,
+            f2 * e2x,
+            f3 * e3x,
+            f1 * e1y,
+            f2 * e2y,
+            f3 * e3y,
+            f1 * e1z,
+            f2 * e2z,
+            f3 * e3z,
+        )
     )
     t = qmul(d, (pw, -px, -py, -pz))
     t = qmul((pw, px, py, pz), t)

@@ -60,10 +60,33 @@ def qmatrix(q):
     )
 
 
+@kernel
+def qfrom_matrix(m):
+    """Unit quaternion of the rotation matrix m (a row-major 9-tuple, as `qmatrix` gives) as a
+    4-tuple of either sign, by Shepperd's stable method."""
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = m
+    tr = m00 + m11 + m22
+    if tr >= m00 and tr >= m11 and tr >= m22:
+        s = 2.0 * math.sqrt(1.0 + tr)
+        w, x, y, z = 0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s
+    elif m00 >= m11 and m00 >= m22:
+        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
+        w, x, y, z = (m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s
+    elif m11 >= m22:
+        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
+        w, x, y, z = (m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s
+    else:
+        s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
+        w, x, y, z = (m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    return w / n, x / n, y / n, z / n
+
+
 # The array functions below are plain numpy: they serve Python callers (engines, metrics,
 # exact solutions) and compiling them cost ~8 s of every empty-cache start. They run the tuple
 # kernels' own Python code (`.py_func`), elementwise on arrays where they take several
-# quaternions, so the formulas exist once.
+# quaternions, so the formulas exist once. `quat_from_matrix` calls its kernel compiled
+# instead: numba compiles it too (the seed's samples).
 
 
 def quat_multiply(p, q):
@@ -90,25 +113,13 @@ def quat_to_matrix(q):
 
 
 def quat_from_matrix(m):
-    """Unit quaternion (w >= 0) of the rotation matrix m, by Shepperd's stable method.
-    Plain Python that numba compiles too (the seed's samples, `reference_sim.seed`)."""
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
-    q = np.empty(4)
-    if tr >= m[0, 0] and tr >= m[1, 1] and tr >= m[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + tr)
-        q[:] = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    elif m[0, 0] >= m[1, 1] and m[0, 0] >= m[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        q[:] = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-    elif m[1, 1] >= m[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        q[:] = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
-    else:
-        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        q[:] = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-    if q[0] < 0:
-        q = -q
-    return q / np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    """Unit quaternion (w >= 0) of the rotation matrix m (3, 3) (`qfrom_matrix`)."""
+    q = np.array(
+        qfrom_matrix(
+            (m[0, 0], m[0, 1], m[0, 2], m[1, 0], m[1, 1], m[1, 2], m[2, 0], m[2, 1], m[2, 2])
+        )
+    )
+    return -q if q[0] < 0 else q
 
 
 def quat_angle_between(p, q):
