@@ -24,9 +24,7 @@ from reference_sim.contact import (
     ContactBuffers,
     _assemble,
     _iterate,
-    after_drift,
     all_pairs,
-    before_drift,
     contact_buffers,
     find_candidates_into,
     frames_into,
@@ -212,6 +210,21 @@ def test_grid_and_pairwise_steps_are_bit_equal(integrator):
         np.testing.assert_array_equal(fast, plain)
 
 
+def _assert_rows_hold_the_pose(model, x, buf):
+    """The rows a step leaves for the next one to keep (those below counts[3] that hold a
+    contact) are what assembling that contact afresh at the bodies' pose gives."""
+    n = buf.counts[3]
+    fresh = ContactBuffers(*(a.copy() for a in buf))
+    fresh.acting[:n] = True
+    fresh.made[:] = -1  # no row to keep
+    _assemble(model, x, n, TOUCH_TOLERANCE, fresh, 0)
+    held = buf.made[:n] == buf.keys[:n]
+    for field in ("gap", "jac", "kn", "k_inv"):
+        np.testing.assert_array_equal(
+            getattr(buf, field)[:n][held], getattr(fresh, field)[:n][held]
+        )
+
+
 @pytest.mark.parametrize("integrator", ["euler", "splitting"])
 @pytest.mark.parametrize("case", ["dropped_cube", "cube_stack", "cube_rain_8"])
 def test_reused_contact_rows_are_bit_equal_to_fresh_ones(case, integrator):
@@ -236,6 +249,8 @@ def test_reused_contact_rows_are_bit_equal_to_fresh_ones(case, integrator):
                 rigid_step(model, INTEGRATORS[integrator], x, q, v, L, scene.dt, threshold, buf)
                 == 0
             )
+            if reuse:
+                _assert_rows_hold_the_pose(model, x, buf)
         results.append((x, q, v, L, buf.solver))
     # rows were kept in much of the run (cube_rain_8 lands a third of the way through its run)
     assert reused > n_steps // 3
@@ -244,30 +259,28 @@ def test_reused_contact_rows_are_bit_equal_to_fresh_ones(case, integrator):
 
 
 def test_rows_past_the_last_assembly_are_assembled_afresh():
-    """A step's first assembly keeps only the rows the last step's second one made. A row past
-    those (the last step had fewer candidates) may hold the same contact as the row of an older
-    step, assembled at that step's pose: it is assembled afresh."""
+    """An assembly keeps only rows below `kept`, the count the last one made at the current
+    pose (`counts[3]`). A row past them (the last step had fewer candidates) may hold the same
+    contact as an older step's row, assembled at that step's pose: it is assembled afresh."""
     scene = CATALOG["resting_cube"]
     model, state = _state(scene)
     x, q, v, L = (a.copy() for a in state)
-    dt, buf = scene.dt, contact_buffers(1, 64, 16)
-    threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * dt
+    buf = contact_buffers(1, 64, 16)
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
-    nc = find_candidates_into(model, x, v, dt, (0.0, 0.0, 0.0), buf)
+    nc = find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
     assert nc >= 2  # the corners on the floor
     buf.acting[:nc] = True
-    after_drift(model, x, q, v, L, nc, dt, buf)  # every row, at this pose
-    # a drift moves the cube (and clears the rows, as `rigid_step`'s does); a step with one
-    # candidate; then the next step has them all again, with the keys they had before
+    _assemble(model, x, nc, TOUCH_TOLERANCE, buf, 0)  # every row, at this pose
+    # the cube moves; a step assembles its one candidate; the next has them all again, with the
+    # keys they had before
     x[0, 2] += 0.01
     q[0] = q[0] + np.array([0.0, 0.01, 0.0, 0.0])
     q[0] /= np.linalg.norm(q[0])
-    buf.counts[3] = 0
-    buf.acting[:1] = True
-    after_drift(model, x, q, v, L, 1, dt, buf)
-    before_drift(model, x, v, L, nc, dt, (0.0, 0.0, 0.0), threshold, buf)
+    frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
+    _assemble(model, x, 1, TOUCH_TOLERANCE, buf, 0)
+    _assemble(model, x, nc, TOUCH_TOLERANCE, buf, 1)
     fresh = ContactBuffers(*(a.copy() for a in buf))
-    fresh.acting[:nc] = True
+    fresh.made[:] = -1  # no row to keep
     _assemble(model, x, nc, TOUCH_TOLERANCE, fresh, 0)
     for field in ("gap", "jac", "kn", "k_inv"):
         np.testing.assert_array_equal(getattr(buf, field)[:nc], getattr(fresh, field)[:nc])
