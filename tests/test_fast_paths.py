@@ -210,16 +210,27 @@ def test_grid_and_pairwise_steps_are_bit_equal(integrator):
         np.testing.assert_array_equal(fast, plain)
 
 
+# what an assembly writes per row
+ROW_FIELDS = ("gap", "jac", "kn", "kt", "kt_inv", "k_inv")
+
+
+def _assembled_afresh(model, x, buf, n):
+    """A copy of `buf` with its first n candidates assembled at the bodies' pose, every one
+    acting and no row kept."""
+    fresh = ContactBuffers(*(a.copy() for a in buf))
+    fresh.acting[:n] = True
+    fresh.made[:] = -1
+    _assemble(model, x, n, TOUCH_TOLERANCE, fresh, 0)
+    return fresh
+
+
 def _assert_rows_hold_the_pose(model, x, buf):
     """The rows a step leaves for the next one to keep (those below counts[3] that hold a
     contact) are what assembling that contact afresh at the bodies' pose gives."""
     n = buf.counts[3]
-    fresh = ContactBuffers(*(a.copy() for a in buf))
-    fresh.acting[:n] = True
-    fresh.made[:] = -1  # no row to keep
-    _assemble(model, x, n, TOUCH_TOLERANCE, fresh, 0)
+    fresh = _assembled_afresh(model, x, buf, n)
     held = buf.made[:n] == buf.keys[:n]
-    for field in ("gap", "jac", "kn", "k_inv"):
+    for field in ROW_FIELDS:
         np.testing.assert_array_equal(
             getattr(buf, field)[:n][held], getattr(fresh, field)[:n][held]
         )
@@ -279,10 +290,8 @@ def test_rows_past_the_last_assembly_are_assembled_afresh():
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
     _assemble(model, x, 1, TOUCH_TOLERANCE, buf, 0)
     _assemble(model, x, nc, TOUCH_TOLERANCE, buf, 1)
-    fresh = ContactBuffers(*(a.copy() for a in buf))
-    fresh.made[:] = -1  # no row to keep
-    _assemble(model, x, nc, TOUCH_TOLERANCE, fresh, 0)
-    for field in ("gap", "jac", "kn", "k_inv"):
+    fresh = _assembled_afresh(model, x, buf, nc)
+    for field in ROW_FIELDS:
         np.testing.assert_array_equal(getattr(buf, field)[:nc], getattr(fresh, field)[:nc])
 
 
