@@ -553,15 +553,6 @@ def _subspace_rows(model, nc, buf):
 
 
 @kernel
-def _coefficient(rows, side, i):
-    """Entry i of the Jacobian row `rows` (`_assemble`) on the velocity (v, omega) of body a
-    (side 0) or b (side 1)."""
-    if side == 0:
-        return rows[0, i] if i < 3 else rows[1, i - 3]
-    return -rows[0, i] if i < 3 else -rows[3, i - 3]
-
-
-@kernel
 def _subspace_speed(buf, r, du):
     """J_r du: the speed along subspace row r that the body velocity changes du (6 per slot)
     give."""
@@ -582,13 +573,13 @@ def _subspace_rhs(buf, n_rows, n, errors):
     for i in range(n):
         buf.rhs[i] = 0.0
     for r in range(n_rows):
-        k = buf.rows[r, 0]
+        k, e = buf.rows[r, 0], errors[r]
         for side in range(2):
             b = buf.cands[k, 2 * side]
             if b >= 0:
                 at = 6 * buf.slot[b]
                 for i in range(6):
-                    buf.rhs[at + i] += buf.row_jac[r, 6 * side + i] * errors[r]
+                    buf.rhs[at + i] += buf.row_jac[r, 6 * side + i] * e
 
 
 @kernel
@@ -613,11 +604,12 @@ def _subspace_step(model, nc, buf, v, L):
     eps = 0.0
     for r in range(n_rows):
         k, d = buf.rows[r, 0], buf.rows[r, 1]
-        for side in range(2):
-            for i in range(6):
-                buf.row_jac[r, 6 * side + i] = _coefficient(buf.jac[k, d], side, i)
+        jac, jr = buf.jac[k, d], buf.row_jac[r]  # on (v, omega) of body a, then of body b
+        for i in range(3):
+            jr[i], jr[3 + i] = jac[0, i], jac[1, i]
+            jr[6 + i], jr[9 + i] = -jac[0, i], -jac[3, i]
         aim = buf.target[k] if d == 0 else 0.0
-        errors[r] = aim - _speed(buf.jac[k, d], buf.cands[k, 0], buf.cands[k, 2], v, buf.omega)
+        errors[r] = aim - _speed(jac, buf.cands[k, 0], buf.cands[k, 2], v, buf.omega)
         eps = max(eps, SUBSPACE_REGULARIZATION * buf.kn[k])
     for i in range(n):
         for j in range(n):
@@ -631,9 +623,10 @@ def _subspace_step(model, nc, buf, v, L):
                 if bs < 0 or bt < 0 or buf.slot[bt] < buf.slot[bs]:
                     continue
                 at_s, at_t = 6 * buf.slot[bs], 6 * buf.slot[bt]
-                for i in range(6):  # a diagonal block's lower triangle too: never read
-                    for j in range(6):
-                        a[at_s + i, at_t + j] += jr[6 * s + i] * jr[6 * t + j]
+                for i in range(6):
+                    f = jr[6 * s + i]
+                    for j in range(i if s == t else 0, 6):
+                        a[at_s + i, at_t + j] += f * jr[6 * t + j]
     for b in range(buf.slot.shape[0]):
         if buf.slot[b] < 0:
             continue

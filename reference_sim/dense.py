@@ -38,9 +38,10 @@ def cholesky_solve(factor, n, b):
     """Overwrite b[:n] with the solution x of U^T U x = b, U the upper triangle of `factor`
     (`cholesky_into`)."""
     for j in range(n):  # U^T y = b
-        b[j] /= factor[j, j]
+        y = b[j] / factor[j, j]
+        b[j] = y
         for i in range(j + 1, n):
-            b[i] -= factor[j, i] * b[j]
+            b[i] -= factor[j, i] * y
     for i in range(n - 1, -1, -1):  # U x = y
         s = b[i]
         for k in range(i + 1, n):
