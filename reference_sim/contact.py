@@ -87,11 +87,12 @@ MAX_ITERATIONS = 500
 # impulses' bounds; sweeps go on and still decide convergence. Measured on `cube_stack`
 # (`euler`, dt 0.01), sweeps and steps in the whole run: 218,700 sweeps and 41 solves at
 # MAX_ITERATIONS without steps; a step after every third sweep, at most 5: 8,200 and 767 steps;
-# after sweeps 2 to 6: 5,400 and 705 (dt 0.0025: 21,000 sweeps instead of 34,800), and
-# `dropped_cube` 1,800 sweeps instead of 6,400 without steps. Not after the first sweep: the step
-# then fixes the first sweep's lopsided impulses, and a cube set on a floor rests on two diagonal
-# corners, their friction pushing them together at 60 % of the cone (3,300 sweeps and 564
-# steps; with 2 steps, 3,500 and 428, but the stack's cold start no longer converges to 1e-14).
+# after sweeps 2 to 6: 5,400 and 705 (dt 0.0025: 21,000 sweeps instead of 34,800; 5,083 and 628
+# since the step's impulse changes carry no cancellation), and `dropped_cube` 1,800 sweeps
+# instead of 6,400 without steps. Not after the first sweep: the step then fixes the first
+# sweep's lopsided impulses, and a cube set on a floor rests on two diagonal corners, their
+# friction pushing them together at 60 % of the cone (3,300 sweeps and 564 steps; with 2
+# steps, 3,500 and 428, but the stack's cold start no longer converges to 1e-14).
 # Without a cap, post-drift solves could cycle between a step and its projection up to the limit
 # (4 solves). No step when every pushing contact slides: their friction is held fixed, and it
 # is what the sweeps are still adjusting (`incline`: 14 % fewer sweeps, each step 1.3x slower).
@@ -583,18 +584,26 @@ def _subspace_rhs(buf, n_rows, n, errors):
 
 
 @kernel
+def _inertia(model, buf, b):
+    """Body b's inertia tensor in the world frame (9,) (row major), at `buf.rot`."""
+    return conjugate_by(flat(buf.rot, b), mat(model.inertia0, b))
+
+
+@kernel
 def _subspace_step(model, nc, buf, v, L):
     """Solve the subspace's equalities together (`_subspace_rows`: each row's speed at its
     target; their Jacobians on the bodies' (v, omega) into `buf.row_jac`), then project the
     impulses onto their bounds and apply the changes.
 
-    Regularised by eps (SUBSPACE_REGULARIZATION): the impulse changes are dP = (A + eps)^-1 e
-    for the rows' speed errors e, A = J M^-1 J^T. With du = M^-1 J^T dP that is
-    (eps M + J^T J) du = J^T e and dP = (e - J du) / eps, one system of 6 unknowns per body.
-    e is first replaced by J du, the part of it a motion of the bodies can meet, so that
-    targets no rigid motion meets at once (`_iterate`) do not set impulses of order (their
-    disagreement) / eps. Returns False, changing no impulse, if there is no subspace
-    (`_subspace_rows`) or the solve fails.
+    Regularised by eps (SUBSPACE_REGULARIZATION): the impulse changes are dP = (W + eps)^-1 e'
+    for the rows' speed errors e, W = J M^-1 J^T, where e' = J du1, du1 = A^-1 J^T e and
+    A = eps M + J^T J (one system of 6 unknowns per body), is the part of e a motion of the
+    bodies can meet, so that targets no rigid motion meets at once (`_iterate`) do not set
+    impulses of order (their disagreement) / eps. Since (W + eps)^-1 J = J A^-1 M, dP is
+    J A^-1 M du1: a second solve with the same factor, and no division by eps. (Computing dP as
+    (e' - J A^-1 J^T e') / eps instead loses about 8 of its 16 digits to cancellation: 1e-8
+    relative error, against 1e-15 this way, checked in 50-digit arithmetic.) Returns False,
+    changing no impulse, if there is no subspace (`_subspace_rows`) or the solve fails.
     """
     n_rows, n_bodies = _subspace_rows(model, nc, buf)
     if n_rows == 0 or n_bodies < 0:
@@ -631,7 +640,7 @@ def _subspace_step(model, nc, buf, v, L):
         if buf.slot[b] < 0:
             continue
         at = 6 * buf.slot[b]
-        inertia = conjugate_by(flat(buf.rot, b), mat(model.inertia0, b))
+        inertia = _inertia(model, buf, b)
         for i in range(3):
             a[at + i, at + i] += eps * model.body_mass[b]
             for j in range(i, 3):
@@ -639,13 +648,18 @@ def _subspace_step(model, nc, buf, v, L):
     if not cholesky_into(a, n):
         return False
     _subspace_rhs(buf, n_rows, n, errors)
+    cholesky_solve(a, n, buf.rhs)  # du1
+    for b in range(buf.slot.shape[0]):  # M du1
+        if buf.slot[b] < 0:
+            continue
+        at = 6 * buf.slot[b]
+        turn = mat_vec(_inertia(model, buf, b), (buf.rhs[at + 3], buf.rhs[at + 4], buf.rhs[at + 5]))
+        for i in range(3):
+            buf.rhs[at + i] *= model.body_mass[b]
+            buf.rhs[at + 3 + i] = turn[i]
     cholesky_solve(a, n, buf.rhs)
-    for r in range(n_rows):  # the part of e that a motion meets
+    for r in range(n_rows):  # the impulse changes
         errors[r] = _subspace_speed(buf, r, buf.rhs)
-    _subspace_rhs(buf, n_rows, n, errors)
-    cholesky_solve(a, n, buf.rhs)
-    for r in range(n_rows):  # now the impulse changes
-        errors[r] = (errors[r] - _subspace_speed(buf, r, buf.rhs)) / eps
     for r in range(n_rows):
         if not math.isfinite(errors[r]):
             return False

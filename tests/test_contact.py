@@ -156,6 +156,22 @@ def test_subspace_step_meets_consistent_targets_at_once():
     assert (buf.lam[:nc, 0] > 0.0).all()
 
 
+def _subspace_system(model, buf, n_rows):
+    """The subspace rows' Jacobian (rows, 6 B) on every body's (v, omega), and M^-1."""
+    nb = buf.rot.shape[0]
+    jac = np.zeros((n_rows, 6 * nb))
+    for r, (k, d) in enumerate(buf.rows[:n_rows]):
+        a, b, j = buf.cands[k, 0], buf.cands[k, 2], buf.jac[k, d]
+        jac[r, 6 * a : 6 * a + 6] = np.concatenate([j[0], j[1]])
+        if b >= 0:
+            jac[r, 6 * b : 6 * b + 6] = -np.concatenate([j[0], j[3]])
+    m_inv = np.zeros((6 * nb, 6 * nb))
+    for b in range(nb):
+        m_inv[6 * b : 6 * b + 3, 6 * b : 6 * b + 3] = np.eye(3) / model.body_mass[b]
+        m_inv[6 * b + 3 : 6 * b + 6, 6 * b + 3 : 6 * b + 6] = buf.inv[b].reshape(3, 3)
+    return jac, m_inv
+
+
 def test_subspace_step_is_the_least_squares_impulse_change():
     """On a stack of five cubes, one cube pushed sideways: the step's impulse changes on its 60
     rows (before projection onto the bounds, left in `row_lam`) are the minimum-norm solution
@@ -165,17 +181,7 @@ def test_subspace_step_is_the_least_squares_impulse_change():
     v[-1, 0] += 1e-6
     n_rows, n_bodies = contact._subspace_rows(model, nc, buf)
     assert (n_rows, n_bodies) == (60, 5)  # 20 contacts, all sticking
-    rows, nb = buf.rows[:n_rows], v.shape[0]
-    jac = np.zeros((n_rows, 6 * nb))
-    for r, (k, d) in enumerate(rows):
-        a, b, j = buf.cands[k, 0], buf.cands[k, 2], buf.jac[k, d]
-        jac[r, 6 * a : 6 * a + 6] = np.concatenate([j[0], j[1]])
-        if b >= 0:
-            jac[r, 6 * b : 6 * b + 6] = -np.concatenate([j[0], j[3]])
-    m_inv = np.zeros((6 * nb, 6 * nb))
-    for b in range(nb):
-        m_inv[6 * b : 6 * b + 3, 6 * b : 6 * b + 3] = np.eye(3) / model.body_mass[b]
-        m_inv[6 * b + 3 : 6 * b + 6, 6 * b + 3 : 6 * b + 6] = buf.inv[b].reshape(3, 3)
+    jac, m_inv = _subspace_system(model, buf, n_rows)
     error = -_row_speeds(buf, n_rows, v)
     delassus = jac @ m_inv @ jac.T
     expected = np.linalg.pinv(delassus, rcond=1e-10) @ error
@@ -187,6 +193,28 @@ def test_subspace_step_is_the_least_squares_impulse_change():
     # (Tikhonov): 2 eps / smallest in all, here 1.2e-5 (measured 1.27e-5); twice that allowed
     bias = 4.0 * eps / smallest
     assert np.abs(buf.row_lam[:n_rows] - expected).max() < bias * np.abs(expected).max()
+
+
+@pytest.mark.parametrize("name", ["resting_cube", "cube_stack"])
+def test_subspace_step_is_its_regularised_solve_to_rounding(name):
+    """The step's impulse changes before projection (`row_lam`) are dP = (W + eps)^-1 J du1,
+    du1 = (eps M + J^T J)^-1 J^T e (`_subspace_step`), here in 40-digit arithmetic, to 1e-12
+    relative. The step computes them as J A^-1 M du1 (measured: 1e-15); forming them as
+    (J du1 - J A^-1 J^T J du1) / eps, as it once did, cancels 8 digits (1e-8 off)."""
+    mp = pytest.importorskip("mpmath")
+    model, nc, buf, v, L = _settled(name)
+    v[-1, 0] += 1e-6
+    n_rows, _ = contact._subspace_rows(model, nc, buf)
+    jac, m_inv = _subspace_system(model, buf, n_rows)
+    error = -_row_speeds(buf, n_rows, v)
+    eps = float(contact.SUBSPACE_REGULARIZATION * buf.kn[:nc].max())
+    assert contact._subspace_step(model, nc, buf, v, L)
+    mp.mp.dps = 40
+    j, m_inv, e = (mp.matrix(a.tolist()) for a in (jac, m_inv, error))
+    du1 = mp.lu_solve(eps * m_inv**-1 + j.T * j, j.T * e)
+    change = mp.lu_solve(j * m_inv * j.T + eps * mp.eye(n_rows), j * du1)
+    expected = np.array([float(x) for x in change])
+    assert np.abs(buf.row_lam[:n_rows] - expected).max() < 1e-12 * np.abs(expected).max()
 
 
 def _history(*steps):
