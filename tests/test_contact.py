@@ -199,8 +199,9 @@ def test_subspace_step_is_the_least_squares_impulse_change():
 def test_subspace_step_is_its_regularised_solve_to_rounding(name):
     """The step's impulse changes before projection (`row_lam`) are dP = (W + eps)^-1 J du1,
     du1 = (eps M + J^T J)^-1 J^T e (`_subspace_step`), here in 40-digit arithmetic, to 1e-12
-    relative. The step computes them as J A^-1 M du1 (measured: 1e-15); forming them as
-    (J du1 - J A^-1 J^T J du1) / eps, as it once did, cancels 8 digits (1e-8 off)."""
+    relative: the step computes them as J A^-1 M du1, to rounding (measured 3e-16 on the cube,
+    7e-15 on the stack); forming them as (J du1 - J A^-1 J^T J du1) / eps, as it once did,
+    cancels 8 digits (1.8e-8 off on the cube)."""
     mp = pytest.importorskip("mpmath")
     model, nc, buf, v, L = _settled(name)
     v[-1, 0] += 1e-6
