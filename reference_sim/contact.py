@@ -89,14 +89,19 @@ MAX_ITERATIONS = 500
 # MAX_ITERATIONS without steps; a step after every third sweep, at most 5: 8,200 and 767 steps;
 # after sweeps 2 to 6: 5,400 and 705 (dt 0.0025: 21,000 sweeps instead of 34,800; 5,083 and 628
 # since the step's impulse changes carry no cancellation), and `dropped_cube` 1,800 sweeps
-# instead of 6,400 without steps. Not after the first sweep: the step then fixes the first
-# sweep's lopsided impulses, and a cube set on a floor rests on two diagonal corners, their
+# instead of 6,400 without steps. Not after a cold start's first sweep: the step then fixes
+# that sweep's lopsided impulses, and a cube set on a floor rests on two diagonal corners, their
 # friction pushing them together at 60 % of the cone (3,300 sweeps and 564 steps; with 2
-# steps, 3,500 and 428, but the stack's cold start no longer converges to 1e-14).
+# steps, 3,500 and 428, but the stack's cold start no longer converges to 1e-14). A solve in
+# which some contact starts from last step's impulses has no such sweep and takes its first
+# step after sweep SUBSPACE_FIRST_WARM: `cube_stack` 3,414 sweeps and 622 steps instead of
+# 5,083 and 628 (`euler`), 2,247 and 242 instead of 3,321 and 567 (`splitting`), 10 % less
+# time; `dropped_cube` 1,596 sweeps instead of 1,805; a cube set on a floor rests as before.
 # Without a cap, post-drift solves could cycle between a step and its projection up to the limit
 # (4 solves). No step when every pushing contact slides: their friction is held fixed, and it
 # is what the sweeps are still adjusting (`incline`: 14 % fewer sweeps, each step 1.3x slower).
 SUBSPACE_FIRST = 2
+SUBSPACE_FIRST_WARM = 1
 SUBSPACE_STEPS = 5
 # The subspace is solved densely, 6 unknowns per body; more bodies than this, no subspace step.
 # It bounds the system at 96 unknowns (a 74 kB matrix, about 1.5e5 multiply-adds to factor);
@@ -805,7 +810,7 @@ def _regroup(buf, n_busy, n_idle, margin, rejoin):
 
 
 @inlined_kernel
-def _iterate(model, nc, buf, v, L, tolerance, idle_margin):
+def _iterate(model, nc, buf, v, L, tolerance, idle_margin, first=SUBSPACE_FIRST):
     """Gauss-Seidel sweeps until no impulse changes a speed by `tolerance` (m/s), or no body's
     velocity changes by that much over a sweep; returns the sweeps used.
 
@@ -823,8 +828,8 @@ def _iterate(model, nc, buf, v, L, tolerance, idle_margin):
     1e-18 m/s; it takes 10100 sweeps in all instead of 14800). The velocities then meet each
     contact's target to within that disagreement.
     A body's velocity change is |dv| + bound radius |d omega|, its fastest surface point's.
-    A subspace step (`_subspace_step`) follows each of the sweeps SUBSPACE_FIRST to
-    SUBSPACE_FIRST + SUBSPACE_STEPS - 1 if it has not converged and a contact stuck in it."""
+    A subspace step (`_subspace_step`) follows each of the sweeps `first` to
+    `first` + SUBSPACE_STEPS - 1 if it has not converged and a contact stuck in it."""
     omega, bodies, order = buf.omega, buf.bodies, buf.busy
     end = order.shape[0] - 1
     n_busy, n_idle = 0, 0
@@ -854,7 +859,7 @@ def _iterate(model, nc, buf, v, L, tolerance, idle_margin):
         if converged:
             return it + 1
         n_busy, n_idle = _regroup(buf, n_busy, n_idle, idle_margin * change, rejoin)
-        if sticking and SUBSPACE_FIRST <= it + 1 < SUBSPACE_FIRST + SUBSPACE_STEPS:
+        if sticking and first <= it + 1 < first + SUBSPACE_STEPS:
             buf.solver[3] += _subspace_step(model, nc, buf, v, L)
     return MAX_ITERATIONS
 
@@ -1055,8 +1060,8 @@ def _warm_start(model, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance):
     """Each contact that matches one of last step's starts from its impulses, continued along
     their trend (`_trend`), applied; the impulses of the steps before go into `buf.hist` for
     `_remember` (NaN: none). Both key lists are in increasing order: one merge pass matches
-    them."""
-    at = 0
+    them. Returns how many contacts matched."""
+    at, warm = 0, 0
     for k in range(nc):
         buf.lam[k, 0], buf.lam[k, 1], buf.lam[k, 2] = 0.0, 0.0, 0.0
         for age in range(2):
@@ -1068,6 +1073,7 @@ def _warm_start(model, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance):
             for age in range(2):
                 for d in range(3):
                     buf.hist[k, age, d] = warm_lam[at, age, d]
+            warm += 1
             start = _trend(model, warm_lam, at, buf.kn[k], tolerance)
             for d in range(3):
                 lam = start[d]
@@ -1075,6 +1081,7 @@ def _warm_start(model, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance):
                 if lam != 0.0:
                     a, b = buf.cands[k, 0], buf.cands[k, 2]
                     _push(model, buf.jac[k, d], a, b, v, L, buf.omega, lam)
+    return warm
 
 
 @inlined_kernel
@@ -1098,11 +1105,13 @@ def _solve(model, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm):
     """Projected Gauss-Seidel on the normal and friction impulses of the active contacts
     (`_assemble`), in place, towards `buf.target` normal speeds, to `solver_tolerance(dt)`.
     Impulses start from those of the same contacts in the previous steps (`warm_keys`,
-    `warm_lam`, `_trend`): a body resting on a plane converges in one sweep. Counts the solve in
-    `buf.solver`."""
+    `warm_lam`, `_trend`): a body resting on a plane converges in one sweep. The first subspace
+    step may follow the first sweep if some contact matched (SUBSPACE_FIRST_WARM), else the
+    second. Counts the solve in `buf.solver`."""
     tolerance = solver_tolerance(dt)
-    _warm_start(model, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance)
-    sweeps = _iterate(model, nc, buf, v, L, tolerance, IDLE_MARGIN)
+    warm = _warm_start(model, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance)
+    first = SUBSPACE_FIRST_WARM if warm > 0 else SUBSPACE_FIRST
+    sweeps = _iterate(model, nc, buf, v, L, tolerance, IDLE_MARGIN, first)
     buf.solver[0] += 1
     buf.solver[1] += sweeps
     buf.solver[2] += sweeps == MAX_ITERATIONS
