@@ -9,6 +9,8 @@ from comparators.trajectory import RunMeta, Trajectory, package_versions
 from reference_sim.contact import (
     IDLE_MARGIN,
     MAX_ITERATIONS,
+    STALL_PROGRESS,
+    STALL_SWEEPS,
     SUBSPACE_FIRST,
     SUBSPACE_STEPS,
     TREND_AGREEMENT,
@@ -112,6 +114,10 @@ def _contact_settings(scene: Scene, integrator: str, dt: float) -> dict:
             "sweep's largest speed change from their target, until the rest converge"
         ),
         "iterations": MAX_ITERATIONS,
+        "stall": (
+            f"stops unconverged after {STALL_SWEEPS} sweeps in which the bodies' velocity "
+            f"change has not fallen below {STALL_PROGRESS} of its last low"
+        ),
         # m/s; the kernel's Python code: stating a setting should compile nothing
         "tolerance": solver_tolerance.py_func(dt),
     }

@@ -59,7 +59,7 @@ RESULT_COLUMNS = [
     "steps_per_s",
     "realtime_factor",
     "solver_sweeps",  # contact solver sweeps per solve, where the engine reports it, else NaN
-    "solver_at_limit",  # contact solves stopped at the solver's iteration limit (unconverged)
+    "solver_at_limit",  # contact solves stopped unconverged (iteration limit, or stalled)
     "solver_subspace",  # the reference's subspace steps (direct solves) per solve, else NaN
     "energy_drift",
     "momentum_drift",

@@ -58,8 +58,8 @@ class RunMeta:
     `bodies` maps body names to the model read back from the engine before stepping
     (`comparators.parity.body_readback`): mass, inertia, x, v, w. `solver` is what the engine
     reports about its own contact solver over the run, where it reports anything: `solves`,
-    `sweeps_per_solve`, `at_limit` (solves stopped at the iteration limit, unconverged) and
-    `subspace_per_solve` (the reference's direct solves within its sweeps).
+    `sweeps_per_solve`, `at_limit` (solves stopped unconverged: at the iteration limit, or
+    stalled) and `subspace_per_solve` (the reference's direct solves within its sweeps).
     """
 
     case: str

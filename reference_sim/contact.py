@@ -79,6 +79,20 @@ BAUMGARTE = 0.2
 VELOCITY_TOLERANCE = 1e-13
 GAP_ROUNDING = 1e-14
 MAX_ITERATIONS = 500
+# A solve stalls, and stops unconverged, when its bodies' velocity change over a sweep has not
+# fallen below STALL_PROGRESS of its value at the last such fall for STALL_SWEEPS sweeps: it is
+# cycling, not converging (a rate worse than 0.5 in 150 sweeps would need thousands of sweeps
+# to reach the tolerance). Measured on every contact case of the catalog (`euler` and
+# `splitting`): only `cube_rain_8`'s solves at MAX_ITERATIONS stall, all 5 of them (`euler`)
+# and 16 of 18 (`splitting`), each cycling after an impact in the pile: between sticking and
+# sliding, the speeds changing by 0.5 m/s every sweep, or stationary at 1e-6 m/s. Stopping
+# them saves 18 % and 32 % of the run's sweeps. With 100 sweeps one solve that converged after
+# 243 sweeps would have stalled at 151. The runs part after the first stalled solve (a pile is
+# chaotic): `euler` 8,417 sweeps instead of 9,238 with 9 solves stalled instead of 5 at the
+# limit, in the same time; `splitting` 11,116 instead of 15,965, 18 stalled, 30 % less time a
+# step; every stalled solve, run on without the rule, reached MAX_ITERATIONS (tested).
+STALL_SWEEPS = 150
+STALL_PROGRESS = 0.5
 # Subspace steps (projected Gauss-Seidel with subspace minimisation, after Silcowitz, Niebe and
 # Erleben 2010): Gauss-Seidel removes a stack's tilting mode, where every level turns at the same
 # rate, by well under 1 % a sweep. After each of a solve's sweeps SUBSPACE_FIRST to
@@ -812,7 +826,8 @@ def _regroup(buf, n_busy, n_idle, margin, rejoin):
 @inlined_kernel
 def _iterate(model, nc, buf, v, L, tolerance, idle_margin, first=SUBSPACE_FIRST):
     """Gauss-Seidel sweeps until no impulse changes a speed by `tolerance` (m/s), or no body's
-    velocity changes by that much over a sweep; returns the sweeps used.
+    velocity changes by that much over a sweep; returns the sweeps used and whether the solve
+    converged (else it reached MAX_ITERATIONS or stalled: STALL_SWEEPS).
 
     Sweeps visit the busy contacts only (`_busy`, with margin `idle_margin` times the last
     sweep's largest speed change; IDLE_MARGIN), and the idle ones too once the busy ones pass
@@ -837,6 +852,7 @@ def _iterate(model, nc, buf, v, L, tolerance, idle_margin, first=SUBSPACE_FIRST)
         if buf.active[k]:
             order[n_busy] = k
             n_busy += 1
+    progress, since = math.inf, 0  # the velocity change at its last fall (STALL_PROGRESS)
     for it in range(MAX_ITERATIONS):
         change = 0.0
         sticking = model.friction == 0.0  # a subspace step needs a sticking contact
@@ -852,16 +868,21 @@ def _iterate(model, nc, buf, v, L, tolerance, idle_margin, first=SUBSPACE_FIRST)
                 change, sticks = _update(model, buf, k, v, L, change)
                 sticking = sticking or sticks
                 m += 1
-            converged = change < tolerance or _moved(model, v, omega, bodies) < tolerance
+            moved = _moved(model, v, omega, bodies)
+            converged = change < tolerance or moved < tolerance
             if rejoin or not converged or n_idle == 0:
                 break
             rejoin, stop = True, n_busy + n_idle
         if converged:
-            return it + 1
+            return it + 1, True
+        if moved < STALL_PROGRESS * progress:
+            progress, since = moved, it
+        elif it - since >= STALL_SWEEPS:
+            return it + 1, False
         n_busy, n_idle = _regroup(buf, n_busy, n_idle, idle_margin * change, rejoin)
         if sticking and first <= it + 1 < first + SUBSPACE_STEPS:
             buf.solver[3] += _subspace_step(model, nc, buf, v, L)
-    return MAX_ITERATIONS
+    return MAX_ITERATIONS, False
 
 
 @inlined_kernel
@@ -892,8 +913,8 @@ class ContactBuffers(NamedTuple):
     three steps (C, 3, 3) (age, direction) before and after the drift, of counts[0] and
     counts[1] contacts, in key order. counts[2]: how many rows of `pairs` the caller filled for
     this step, or -1 to have them found pair by pair.
-    solver (4,): solves, sweeps, solves that reached MAX_ITERATIONS and subspace steps taken,
-    summed over the run.
+    solver (4,): solves, sweeps, solves stopped unconverged (at MAX_ITERATIONS or stalled:
+    STALL_SWEEPS) and subspace steps taken, summed over the run.
     The subspace step (`_subspace_step`): rows (3C, 2) (contact, direction), row_jac (3C, 12)
     and row_lam (3C,) per row, slot (B,) each body's place in it (-1: not in it), normal
     (6S, 6S) and rhs (6S,), S = min(B, SUBSPACE_MAX_BODIES).
@@ -1111,10 +1132,10 @@ def _solve(model, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm):
     tolerance = solver_tolerance(dt)
     warm = _warm_start(model, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance)
     first = SUBSPACE_FIRST_WARM if warm > 0 else SUBSPACE_FIRST
-    sweeps = _iterate(model, nc, buf, v, L, tolerance, IDLE_MARGIN, first)
+    sweeps, converged = _iterate(model, nc, buf, v, L, tolerance, IDLE_MARGIN, first)
     buf.solver[0] += 1
     buf.solver[1] += sweeps
-    buf.solver[2] += sweeps == MAX_ITERATIONS
+    buf.solver[2] += not converged
 
 
 @inlined_kernel

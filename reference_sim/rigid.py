@@ -231,7 +231,8 @@ def _record(model, x, q, v, L, out):
 def run_rigid(model, integrator, x, q, v, L, dt, n_steps, stride):
     """Step n_steps times in place; return the sampled steps (S,), samples (S, B, 13): x, q, v,
     omega per body, and the contact solver's statistics (4,): solves, Gauss-Seidel sweeps,
-    solves that reached MAX_ITERATIONS and subspace steps (zeros without contact).
+    solves stopped unconverged (at MAX_ITERATIONS or stalled) and subspace steps (zeros
+    without contact).
 
     Samples are taken at step 0, every `stride` steps, and at the last step.
     """

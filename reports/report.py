@@ -61,7 +61,7 @@ METRIC_HEADERS = {
     "rest_com_height": "rest height (m)",
     "shape_error": "shape error",
     "solver_sweeps": "solver sweeps per solve",
-    "solver_at_limit": "solves at iteration limit",
+    "solver_at_limit": "solves stopped unconverged",
     "solver_subspace": "subspace steps per solve",
     "verdict": "verdict",
 }

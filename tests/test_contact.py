@@ -13,8 +13,9 @@ from cases.exact import exact_states
 from comparators import run
 from comparators.metrics import body_arrays, conserved_quantities, pose_errors
 from comparators.reference import model_from_scene
-from reference_sim import contact
+from reference_sim import contact, rigid
 from reference_sim.model import rigid_initial_state
+from reference_sim.rigid import BOUNCE_STEPS, INTEGRATORS, rigid_step
 
 # Gauss-Seidel impulses stop when no impulse changes a speed by more than 1e-13 m/s; a few
 # sweeps of that leave the outcome exact to well below this.
@@ -84,8 +85,8 @@ def test_gauss_seidel_ends_on_targets_no_rigid_motion_meets():
     buf.target[:nc] = (0.0, 0.0, 0.0, disagreement)
     v += scene.dt * model.gravity
     tolerance = contact.VELOCITY_TOLERANCE
-    sweeps = contact._iterate(model, nc, buf, v, L, tolerance, contact.IDLE_MARGIN)
-    assert sweeps < contact.MAX_ITERATIONS
+    sweeps, converged = contact._iterate(model, nc, buf, v, L, tolerance, contact.IDLE_MARGIN)
+    assert converged and sweeps < contact.MAX_ITERATIONS
     for k in range(nc):
         speed = contact._speed(buf.jac[k, 0], buf.cands[k, 0], buf.cands[k, 2], v, buf.omega)
         assert speed > buf.target[k] - disagreement
@@ -117,9 +118,7 @@ def _settled(name, friction=None):
     contact._assemble(model, x, nc, contact.TOUCH_TOLERANCE, buf, 0)
     buf.target[:nc] = 0.0
     v += scene.dt * model.gravity
-    assert (
-        contact._iterate(model, nc, buf, v, L, 1e-14, contact.IDLE_MARGIN) < contact.MAX_ITERATIONS
-    )
+    assert contact._iterate(model, nc, buf, v, L, 1e-14, contact.IDLE_MARGIN)[1]
     return model, nc, buf, v, L
 
 
@@ -258,3 +257,43 @@ def test_warm_start_does_not_extrapolate_rounding_jitter():
     history = _history((1.0 + 2 * change, 0, 0), (1.0 + change, 0, 0), (1.0, 0, 0))
     assert contact._trend(model, history, 0, 1.0, tolerance) == (1.0 + 2 * change, 0.0, 0.0)
     assert contact._trend(model, history, 0, 4.0, tolerance)[0] == 1.0 + 3 * change
+
+
+def test_a_stalled_solve_is_one_the_iteration_limit_would_not_have_seen_converge(monkeypatch):
+    """`cube_rain_8`'s first solve that stops unconverged stops on the stall rule (before
+    MAX_ITERATIONS), and is one that cycles: the same step, its solves run again from the same
+    state without the rule (the kernels' Python code, STALL_SWEEPS out of reach), still ends
+    with a solve at MAX_ITERATIONS."""
+    scene = CATALOG["cube_rain_8"]
+    model = model_from_scene(scene)
+    bodies = scene.bodies
+    state = rigid_initial_state(
+        model,
+        [b.com for b in bodies],
+        [b.velocity for b in bodies],
+        [b.angular_velocity for b in bodies],
+    )
+    x, q, v, L = (a.copy() for a in state)
+    integrator, dt = INTEGRATORS["euler"], scene.dt
+    threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * dt
+    buf = contact.contact_buffers(len(bodies), 64 * len(bodies), len(bodies) ** 2)
+    for _ in range(scene.steps(dt, scene.duration)):
+        before = [a.copy() for a in (x, q, v, L)], contact.ContactBuffers(*(a.copy() for a in buf))
+        assert rigid_step(model, integrator, x, q, v, L, dt, threshold, buf) == 0
+        if buf.solver[2] > before[1].solver[2]:
+            break
+    else:
+        pytest.fail("no solve stopped unconverged")
+    solves, sweeps = (buf.solver[:2] - before[1].solver[:2]).tolist()
+    assert sweeps < solves * contact.MAX_ITERATIONS  # stopped early: stalled
+    # the step again, without the stall rule
+    (x, q, v, L), buf = before
+    unconverged, sweeps_before = buf.solver[2], buf.solver[1]
+    monkeypatch.setattr(contact, "STALL_SWEEPS", 10**9)
+    for name in ("_iterate", "_solve"):
+        monkeypatch.setattr(contact, name, getattr(contact, name).py_func)
+    for name in ("before_drift", "after_drift"):
+        monkeypatch.setattr(rigid, name, getattr(contact, name).py_func)
+    rigid_step.py_func(model, integrator, x, q, v, L, dt, threshold, buf)
+    assert buf.solver[2] > unconverged
+    assert buf.solver[1] - sweeps_before >= contact.MAX_ITERATIONS
