@@ -2,6 +2,17 @@
 
 from cases import Body, Contact, Scene
 from cases.builders import seed_cube
+from reference_sim.model import rigid_initial_state
+
+
+def initial_state(model, scene: Scene):
+    """The reference simulator's rigid state (x, q, v, L) of `scene`'s bodies at t = 0."""
+    return rigid_initial_state(
+        model,
+        [b.com for b in scene.bodies],
+        [b.velocity for b in scene.bodies],
+        [b.angular_velocity for b in scene.bodies],
+    )
 
 
 def head_on(restitution: float, contact: bool = True) -> Scene:

@@ -5,7 +5,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from scenes import head_on
+from scenes import head_on, initial_state
 
 from cases import CATALOG, Body, Contact, Scene
 from cases.builders import box_corners, floor
@@ -14,7 +14,6 @@ from comparators import run
 from comparators.metrics import body_arrays, conserved_quantities, pose_errors
 from comparators.reference import model_from_scene
 from reference_sim import contact, rigid
-from reference_sim.model import rigid_initial_state
 from reference_sim.rigid import BOUNCE_STEPS, INTEGRATORS, rigid_step
 
 # Gauss-Seidel impulses stop when no impulse changes a speed by more than 1e-13 m/s; a few
@@ -73,8 +72,7 @@ def test_gauss_seidel_ends_on_targets_no_rigid_motion_meets():
     within the disagreement of its target, and one more sweep must leave them as they are."""
     scene = CATALOG["resting_cube"]
     model = model_from_scene(scene)
-    body = scene.bodies[0]
-    x, q, v, L = rigid_initial_state(model, [body.com], [body.velocity], [body.angular_velocity])
+    x, q, v, L = initial_state(model, scene)
     buf = contact.contact_buffers(1, 16, 4)
     contact.frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
     nc = contact.find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
@@ -104,14 +102,8 @@ def _settled(name, friction=None):
     model = model_from_scene(scene)
     if friction is not None:
         model = model._replace(friction=friction)
-    bodies = scene.bodies
-    x, q, v, L = rigid_initial_state(
-        model,
-        [b.com for b in bodies],
-        [b.velocity for b in bodies],
-        [b.angular_velocity for b in bodies],
-    )
-    buf = contact.contact_buffers(len(bodies), 64, 16)
+    x, q, v, L = initial_state(model, scene)
+    buf = contact.contact_buffers(len(scene.bodies), 64, 16)
     contact.frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
     nc = contact.find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
     buf.acting[:nc] = True
@@ -267,13 +259,7 @@ def test_a_stalled_solve_is_one_the_iteration_limit_would_not_have_seen_converge
     scene = CATALOG["cube_rain_8"]
     model = model_from_scene(scene)
     bodies = scene.bodies
-    state = rigid_initial_state(
-        model,
-        [b.com for b in bodies],
-        [b.velocity for b in bodies],
-        [b.angular_velocity for b in bodies],
-    )
-    x, q, v, L = (a.copy() for a in state)
+    x, q, v, L = initial_state(model, scene)
     integrator, dt = INTEGRATORS["euler"], scene.dt
     threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * dt
     buf = contact.contact_buffers(len(bodies), 64 * len(bodies), len(bodies) ** 2)

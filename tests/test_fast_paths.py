@@ -12,6 +12,7 @@
 
 import numpy as np
 import pytest
+from scenes import initial_state
 from scipy.spatial.transform import Rotation
 
 from cases import CATALOG, Body, Contact, Scene
@@ -32,7 +33,6 @@ from reference_sim.contact import (
     reach_into,
     solver_tolerance,
 )
-from reference_sim.model import rigid_initial_state
 from reference_sim.rigid import BOUNCE_STEPS, INTEGRATORS, rigid_step, run_rigid
 
 # Free flight: one step of either path from the same state. They differ in the order of their
@@ -96,13 +96,7 @@ def straightforward_step(model, integrator, x, q, v, L, dt):
 
 def _state(scene):
     model = model_from_scene(scene)
-    state = rigid_initial_state(
-        model,
-        [b.com for b in scene.bodies],
-        [b.velocity for b in scene.bodies],
-        [b.angular_velocity for b in scene.bodies],
-    )
-    return model, state
+    return model, initial_state(model, scene)
 
 
 @pytest.mark.parametrize("integrator", ["euler", "splitting", "rk4"])
