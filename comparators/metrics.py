@@ -213,6 +213,7 @@ def summarize(traj: Trajectory, scene: Scene) -> dict[str, float | str | bool]:
         "solver_sweeps": m.solver.get("sweeps_per_solve", np.nan),
         "solver_at_limit": m.solver.get("at_limit", np.nan),
         "solver_subspace": m.solver.get("subspace_per_solve", np.nan),
+        "solver_extrapolations": m.solver.get("extrapolations_per_solve", np.nan),
     }
     with np.errstate(over="ignore", invalid="ignore"):  # a blown-up run's drifts are inf
         out.update(drifts(traj, scene))

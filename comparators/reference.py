@@ -9,6 +9,9 @@ from comparators.trajectory import RunMeta, Trajectory, package_versions
 from reference_sim.contact import (
     IDLE_MARGIN,
     MAX_ITERATIONS,
+    RATE_AGREEMENT,
+    RATE_MAX,
+    RATE_SWEEPS,
     STALL_PROGRESS,
     STALL_SWEEPS,
     SUBSPACE_FIRST,
@@ -100,7 +103,7 @@ def _contact_settings(scene: Scene, integrator: str, dt: float) -> dict:
     return {
         "contact": "impulses only: speculative before the drift, bounce and rest after it",
         "friction_cone": "isotropic Coulomb disc",
-        "solver": "projected Gauss-Seidel, warm-started, with subspace steps",
+        "solver": "projected Gauss-Seidel, warm-started, with subspace steps and extrapolation",
         "subspace_steps": (
             f"after unconverged sweeps {SUBSPACE_FIRST} to "
             f"{SUBSPACE_FIRST + SUBSPACE_STEPS - 1} of a solve"
@@ -113,6 +116,11 @@ def _contact_settings(scene: Scene, integrator: str, dt: float) -> dict:
             f"skipped by sweeps while not pushing and more than {IDLE_MARGIN:g} times the last "
             "sweep's largest speed change from their target, until the rest converge"
         ),
+        "extrapolation": (
+            f"after {RATE_SWEEPS} sweeps whose velocity changes shrank by a steady ratio rho "
+            f"(within {RATE_AGREEMENT} of it, rho < {RATE_MAX}), the next sweep's impulse "
+            "change times rho / (1 - rho) is added"
+        ),
         "iterations": MAX_ITERATIONS,
         "stall": (
             f"stops unconverged after {STALL_SWEEPS} sweeps in which the bodies' velocity "
@@ -124,16 +132,17 @@ def _contact_settings(scene: Scene, integrator: str, dt: float) -> dict:
 
 
 def _solver_report(solver) -> dict[str, float]:
-    """`RunMeta.solver` from `run_rigid`'s statistics (solves, sweeps, solves at the limit,
-    subspace steps)."""
+    """`RunMeta.solver` from `run_rigid`'s statistics (solves, sweeps, solves stopped
+    unconverged, subspace steps, extrapolations)."""
     if solver is None or solver[0] == 0:
         return {}
-    solves, sweeps, at_limit, subspace = (int(n) for n in solver)
+    solves, sweeps, at_limit, subspace, extrapolations = (int(n) for n in solver)
     return {
         "solves": solves,
         "sweeps_per_solve": sweeps / solves,
         "at_limit": at_limit,
         "subspace_per_solve": subspace / solves,
+        "extrapolations_per_solve": extrapolations / solves,
     }
 
 

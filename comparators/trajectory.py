@@ -59,7 +59,8 @@ class RunMeta:
     (`comparators.parity.body_readback`): mass, inertia, x, v, w. `solver` is what the engine
     reports about its own contact solver over the run, where it reports anything: `solves`,
     `sweeps_per_solve`, `at_limit` (solves stopped unconverged: at the iteration limit, or
-    stalled) and `subspace_per_solve` (the reference's direct solves within its sweeps).
+    stalled), `subspace_per_solve` (the reference's direct solves within its sweeps) and
+    `extrapolations_per_solve` (the reference's jumps along its sweeps' steady rate).
     """
 
     case: str

@@ -63,6 +63,7 @@ METRIC_HEADERS = {
     "solver_sweeps": "solver sweeps per solve",
     "solver_at_limit": "solves stopped unconverged",
     "solver_subspace": "subspace steps per solve",
+    "solver_extrapolations": "extrapolations per solve",
     "verdict": "verdict",
 }
 # columns dropped when all NaN
@@ -72,6 +73,7 @@ SHOWN_WHERE_MEASURED = (
     "solver_sweeps",
     "solver_at_limit",
     "solver_subspace",
+    "solver_extrapolations",
 )
 
 CSS = """
@@ -413,8 +415,9 @@ def _pareto_sentence(runs: pd.DataFrame) -> str:
 SOLVER_NOTE = (
     " Solver columns are what an engine reports of its own contact solver, where it reports "
     "anything: the reference's Gauss-Seidel sweeps per solve (two solves a step with contact), "
-    "the solves it stopped at its iteration limit, unconverged, and its subspace steps per "
-    "solve (a direct solve of the contacts that push, each costing more than a sweep)."
+    "the solves it stopped unconverged (at its iteration limit, or stalled), its subspace steps "
+    "per solve (a direct solve of the contacts that push, each costing more than a sweep) and "
+    "its extrapolations per solve (a jump along the sweeps' steady rate of convergence)."
 )
 CONTACT_ORDER_NOTE = (
     " With contact, impacts are resolved once per step, so no integrator converges faster "

@@ -283,3 +283,50 @@ def test_a_stalled_solve_is_one_the_iteration_limit_would_not_have_seen_converge
     rigid_step.py_func(model, integrator, x, q, v, L, dt, threshold, buf)
     assert buf.solver[2] > unconverged
     assert buf.solver[1] - sweeps_before >= contact.MAX_ITERATIONS
+
+
+# Both solves stop once a sweep changes no speed by the solver tolerance; Gauss-Seidel at a
+# rate up to RATE_MAX (0.98) is then within rate / (1 - rate) = 49 tolerances of its limit.
+SAME_MOTION_TOLERANCES = 50
+
+
+def test_an_extrapolated_solve_ends_where_the_sweeps_alone_would(monkeypatch):
+    """`cube_rain_8`'s first step with an extrapolation (`_extrapolate`), run again from the
+    same state without extrapolating (the kernels' Python code, RATE_MAX 0): both converge, to
+    the same velocities within SAME_MOTION_TOLERANCES solver tolerances, the extrapolated one
+    in fewer sweeps."""
+    scene = CATALOG["cube_rain_8"]
+    model = model_from_scene(scene)
+    x, q, v, L = initial_state(model, scene)
+    integrator, dt = INTEGRATORS["euler"], scene.dt
+    threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * dt
+    nb = len(scene.bodies)
+    buf = contact.contact_buffers(nb, 64 * nb, nb**2)
+    for _ in range(scene.steps(dt, scene.duration)):
+        before = [a.copy() for a in (x, q, v, L)], contact.ContactBuffers(*(a.copy() for a in buf))
+        assert rigid_step(model, integrator, x, q, v, L, dt, threshold, buf) == 0
+        if buf.solver[4] > before[1].solver[4]:
+            break
+    else:
+        pytest.fail("no solve extrapolated")
+    extrapolated = buf.solver - before[1].solver
+    assert extrapolated[2] == 0  # converged
+    state, buf = [a.copy() for a in before[0]], before[1]
+    solver = buf.solver.copy()
+    monkeypatch.setattr(contact, "RATE_MAX", 0.0)
+    for name in ("_iterate", "_solve"):
+        monkeypatch.setattr(contact, name, getattr(contact, name).py_func)
+    for name in ("before_drift", "after_drift"):
+        monkeypatch.setattr(rigid, name, getattr(contact, name).py_func)
+    rigid_step.py_func(model, integrator, *state, dt, threshold, buf)
+    plain = buf.solver - solver
+    assert plain[4] == 0 and plain[2] == 0
+    assert extrapolated[1] < plain[1]
+    tolerance = SAME_MOTION_TOLERANCES * contact.solver_tolerance(dt)
+    np.testing.assert_allclose(v, state[2], rtol=0, atol=tolerance)
+    for b in range(nb):  # turning, at the speed of the body's farthest surface point
+        w, w_plain = (
+            model.bound_radius[b] * np.array(contact.world_omega(model, s[1][b], s[3][b], b))
+            for s in ((x, q, v, L), state)
+        )
+        np.testing.assert_allclose(w, w_plain, rtol=0, atol=tolerance)
