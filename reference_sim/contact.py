@@ -557,6 +557,19 @@ def _into_disc(mu, p0, p1, p2):
 
 
 @kernel
+def _set_impulses(model, buf, k, p0, p1, p2, v, L):
+    """Set contact k's impulses (normal p0, friction p1, p2) projected onto its bounds (normal
+    >= 0, friction in the Coulomb disc), and apply their changes to v and L."""
+    p0 = max(p0, 0.0)
+    p1, p2 = _into_disc(model.friction, p0, p1, p2)
+    a, b = buf.cands[k, 0], buf.cands[k, 2]
+    for d, p in ((0, p0), (1, p1), (2, p2)):
+        if p != buf.lam[k, d]:
+            _push(model, buf.jac[k, d], a, b, v, L, buf.omega, p - buf.lam[k, d])
+            buf.lam[k, d] = p
+
+
+@kernel
 def _subspace_rows(model, nc, buf):
     """The subspace: rows (contact, direction) in `buf.rows` of every active contact that
     pushes, its normal, and its tangents too if it sticks; its bodies numbered in `buf.slot`.
@@ -705,19 +718,12 @@ def _subspace_step(model, nc, buf, v, L):
             break
         if buf.rows[r, 0] != k:
             continue
-        new = (buf.lam[k, 0], buf.lam[k, 1], buf.lam[k, 2])
-        p0 = max(new[0] + errors[r], 0.0)
-        p1, p2 = new[1], new[2]
+        p0, p1, p2 = buf.lam[k, 0] + errors[r], buf.lam[k, 1], buf.lam[k, 2]
         if r + 1 < n_rows and buf.rows[r + 1, 0] == k:  # sticks: the tangents are rows too
             p1, p2 = p1 + errors[r + 1], p2 + errors[r + 2]
             r += 2
         r += 1
-        p1, p2 = _into_disc(model.friction, p0, p1, p2)
-        a_k, b_k = buf.cands[k, 0], buf.cands[k, 2]
-        for d, p in ((0, p0), (1, p1), (2, p2)):
-            if p != new[d]:
-                _push(model, buf.jac[k, d], a_k, b_k, v, L, buf.omega, p - new[d])
-                buf.lam[k, d] = p
+        _set_impulses(model, buf, k, p0, p1, p2, v, L)
     return True
 
 
@@ -848,16 +854,11 @@ def _extrapolate(model, buf, n, v, L, factor):
     decide convergence."""
     for m in range(n):
         k = buf.busy[m]
-        old = (buf.lam[k, 0], buf.lam[k, 1], buf.lam[k, 2])
-        p0 = max(old[0] + factor * (old[0] - buf.lam_sweep[k, 0]), 0.0)
-        p1 = old[1] + factor * (old[1] - buf.lam_sweep[k, 1])
-        p2 = old[2] + factor * (old[2] - buf.lam_sweep[k, 2])
-        p1, p2 = _into_disc(model.friction, p0, p1, p2)
-        a, b = buf.cands[k, 0], buf.cands[k, 2]
-        for d, p in ((0, p0), (1, p1), (2, p2)):
-            if p != old[d]:
-                _push(model, buf.jac[k, d], a, b, v, L, buf.omega, p - old[d])
-                buf.lam[k, d] = p
+        lam, last = buf.lam[k], buf.lam_sweep[k]
+        p0 = lam[0] + factor * (lam[0] - last[0])
+        p1 = lam[1] + factor * (lam[1] - last[1])
+        p2 = lam[2] + factor * (lam[2] - last[2])
+        _set_impulses(model, buf, k, p0, p1, p2, v, L)
 
 
 @inlined_kernel
