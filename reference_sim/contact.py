@@ -98,7 +98,8 @@ STALL_PROGRESS = 0.5
 # the same ratio rho (to within RATE_AGREEMENT of it) over the last RATE_SWEEPS sweeps, one slow
 # mode is left, and the sweeps would go on changing the impulses by rho times their last change,
 # sweep after sweep: the next sweep's change times rho / (1 - rho), the sum of them all, is
-# added at once. Below RATE_MAX only: a slower rate is no steady mode worth a jump of 50 sweeps.
+# added at once. Only below RATE_MAX (not tuned): towards rho = 1 the jump, and the error an
+# inexact rho makes in it, grow without bound; at RATE_MAX the jump is 49 sweeps' worth.
 # A pile converges that way: one of `cube_rain_8`'s solves shrank by 0.894 a sweep from its
 # 20th sweep to its 205th. The same 100 states of `cube_rain_8` (a run on the sweeps alone),
 # each stepped once, take 5,280 sweeps instead of 8,039 (`euler`) and 6,819 instead of 11,026
