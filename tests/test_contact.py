@@ -2,6 +2,7 @@
 Gauss-Seidel solve ends on targets no rigid motion meets."""
 
 import dataclasses
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -251,38 +252,66 @@ def test_warm_start_does_not_extrapolate_rounding_jitter():
     assert contact._trend(model, history, 0, 4.0, tolerance)[0] == 1.0 + 3 * change
 
 
+class _RainStep(NamedTuple):
+    """A step of `cube_rain_8` (`euler`): the state and buffers before it, the state after it
+    and what the solver counted in it (`ContactBuffers.solver`)."""
+
+    model: object
+    state: list
+    buf: contact.ContactBuffers
+    after: list
+    counted: np.ndarray
+
+
+def _first_rain_step_counting(counter):
+    """The first step of `cube_rain_8` in which the solver statistic `counter` grows."""
+    scene = CATALOG["cube_rain_8"]
+    model = model_from_scene(scene)
+    x, q, v, L = initial_state(model, scene)
+    nb = len(scene.bodies)
+    buf = contact.contact_buffers(nb, 64 * nb, nb**2)
+    for _ in range(scene.steps(scene.dt, scene.duration)):
+        before = [a.copy() for a in (x, q, v, L)], contact.ContactBuffers(*(a.copy() for a in buf))
+        assert _rain_step(model, (x, q, v, L), buf) == 0
+        if buf.solver[counter] > before[1].solver[counter]:
+            after = [a.copy() for a in (x, q, v, L)]
+            return _RainStep(model, *before, after, buf.solver - before[1].solver)
+    pytest.fail(f"no step counted solver statistic {counter}")
+
+
+def _rain_step(model, state, buf, step=rigid_step):
+    """One `euler` step of `cube_rain_8` at its dt, in place (`step`: `rigid_step` or its
+    Python code)."""
+    dt = CATALOG["cube_rain_8"].dt
+    threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * dt
+    return step(model, INTEGRATORS["euler"], *state, dt, threshold, buf)
+
+
+def _rerun_in_python(monkeypatch, step, **settings):
+    """Step `step` again from its state (in place), through the kernels' Python code with the
+    contact module's `settings` changed; returns what the solver counted."""
+    for name, value in settings.items():
+        monkeypatch.setattr(contact, name, value)
+    for name in ("_iterate", "_solve"):
+        monkeypatch.setattr(contact, name, getattr(contact, name).py_func)
+    for name in ("before_drift", "after_drift"):
+        monkeypatch.setattr(rigid, name, getattr(contact, name).py_func)
+    solver = step.buf.solver.copy()
+    _rain_step(step.model, step.state, step.buf, rigid_step.py_func)
+    return step.buf.solver - solver
+
+
 def test_a_stalled_solve_is_one_the_iteration_limit_would_not_have_seen_converge(monkeypatch):
     """`cube_rain_8`'s first solve that stops unconverged stops on the stall rule (before
     MAX_ITERATIONS), and is one that cycles: the same step, its solves run again from the same
     state without the rule (the kernels' Python code, STALL_SWEEPS out of reach), still ends
     with a solve at MAX_ITERATIONS."""
-    scene = CATALOG["cube_rain_8"]
-    model = model_from_scene(scene)
-    bodies = scene.bodies
-    x, q, v, L = initial_state(model, scene)
-    integrator, dt = INTEGRATORS["euler"], scene.dt
-    threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * dt
-    buf = contact.contact_buffers(len(bodies), 64 * len(bodies), len(bodies) ** 2)
-    for _ in range(scene.steps(dt, scene.duration)):
-        before = [a.copy() for a in (x, q, v, L)], contact.ContactBuffers(*(a.copy() for a in buf))
-        assert rigid_step(model, integrator, x, q, v, L, dt, threshold, buf) == 0
-        if buf.solver[2] > before[1].solver[2]:
-            break
-    else:
-        pytest.fail("no solve stopped unconverged")
-    solves, sweeps = (buf.solver[:2] - before[1].solver[:2]).tolist()
+    step = _first_rain_step_counting(2)
+    solves, sweeps = step.counted[:2].tolist()
     assert sweeps < solves * contact.MAX_ITERATIONS  # stopped early: stalled
-    # the step again, without the stall rule
-    (x, q, v, L), buf = before
-    unconverged, sweeps_before = buf.solver[2], buf.solver[1]
-    monkeypatch.setattr(contact, "STALL_SWEEPS", 10**9)
-    for name in ("_iterate", "_solve"):
-        monkeypatch.setattr(contact, name, getattr(contact, name).py_func)
-    for name in ("before_drift", "after_drift"):
-        monkeypatch.setattr(rigid, name, getattr(contact, name).py_func)
-    rigid_step.py_func(model, integrator, x, q, v, L, dt, threshold, buf)
-    assert buf.solver[2] > unconverged
-    assert buf.solver[1] - sweeps_before >= contact.MAX_ITERATIONS
+    without_rule = _rerun_in_python(monkeypatch, step, STALL_SWEEPS=10**9)
+    assert without_rule[2] > 0
+    assert without_rule[1] >= contact.MAX_ITERATIONS
 
 
 # Both solves stop once a sweep changes no speed by the solver tolerance; Gauss-Seidel at a
@@ -295,38 +324,17 @@ def test_an_extrapolated_solve_ends_where_the_sweeps_alone_would(monkeypatch):
     same state without extrapolating (the kernels' Python code, RATE_MAX 0): both converge, to
     the same velocities within SAME_MOTION_TOLERANCES solver tolerances, the extrapolated one
     in fewer sweeps."""
-    scene = CATALOG["cube_rain_8"]
-    model = model_from_scene(scene)
-    x, q, v, L = initial_state(model, scene)
-    integrator, dt = INTEGRATORS["euler"], scene.dt
-    threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * dt
-    nb = len(scene.bodies)
-    buf = contact.contact_buffers(nb, 64 * nb, nb**2)
-    for _ in range(scene.steps(dt, scene.duration)):
-        before = [a.copy() for a in (x, q, v, L)], contact.ContactBuffers(*(a.copy() for a in buf))
-        assert rigid_step(model, integrator, x, q, v, L, dt, threshold, buf) == 0
-        if buf.solver[4] > before[1].solver[4]:
-            break
-    else:
-        pytest.fail("no solve extrapolated")
-    extrapolated = buf.solver - before[1].solver
-    assert extrapolated[2] == 0  # converged
-    state, buf = [a.copy() for a in before[0]], before[1]
-    solver = buf.solver.copy()
-    monkeypatch.setattr(contact, "RATE_MAX", 0.0)
-    for name in ("_iterate", "_solve"):
-        monkeypatch.setattr(contact, name, getattr(contact, name).py_func)
-    for name in ("before_drift", "after_drift"):
-        monkeypatch.setattr(rigid, name, getattr(contact, name).py_func)
-    rigid_step.py_func(model, integrator, *state, dt, threshold, buf)
-    plain = buf.solver - solver
+    step = _first_rain_step_counting(4)
+    assert step.counted[2] == 0  # converged
+    plain = _rerun_in_python(monkeypatch, step, RATE_MAX=0.0)
     assert plain[4] == 0 and plain[2] == 0
-    assert extrapolated[1] < plain[1]
-    tolerance = SAME_MOTION_TOLERANCES * contact.solver_tolerance(dt)
-    np.testing.assert_allclose(v, state[2], rtol=0, atol=tolerance)
-    for b in range(nb):  # turning, at the speed of the body's farthest surface point
+    assert step.counted[1] < plain[1]
+    model, v = step.model, step.state[2]
+    tolerance = SAME_MOTION_TOLERANCES * contact.solver_tolerance(CATALOG["cube_rain_8"].dt)
+    np.testing.assert_allclose(step.after[2], v, rtol=0, atol=tolerance)
+    for b in range(len(v)):  # turning, at the speed of the body's farthest surface point
         w, w_plain = (
             model.bound_radius[b] * np.array(contact.world_omega(model, s[1][b], s[3][b], b))
-            for s in ((x, q, v, L), state)
+            for s in (step.after, step.state)
         )
         np.testing.assert_allclose(w, w_plain, rtol=0, atol=tolerance)
