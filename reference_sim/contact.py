@@ -156,6 +156,9 @@ DISC_ROUNDING = 1e-12
 # took 1.35 times the post-drift sweeps.
 TREND_AGREEMENT = 0.5
 TREND_NOISE = 100.0
+# The contact solver's statistics over a run (`ContactBuffers.solver`): solves, sweeps, solves
+# stopped unconverged, subspace steps and extrapolations.
+SOLVER_STATISTICS = 5
 # Scenes with at least this many bodies find close body pairs on a uniform grid (linear in the
 # number of bodies); fewer are tested pair by pair, which is faster for a handful.
 GRID_MIN_BODIES = 16
@@ -1055,7 +1058,7 @@ def contact_buffers(n_bodies, capacity, pair_capacity):
         np.empty(c, dtype=np.int64),
         np.zeros((c, 3, 3)),
         counts,
-        np.zeros(5, dtype=np.int64),
+        np.zeros(SOLVER_STATISTICS, dtype=np.int64),
         np.zeros((3 * c, 2), dtype=np.int64),
         np.zeros((3 * c, 12)),
         np.zeros(3 * c),
@@ -1079,7 +1082,7 @@ def _carry_over(old, new):
                 new.post_lam[k, age, d] = old.post_lam[k, age, d]
     for k in range(3):  # not counts[3]: the new buffers hold no assembled rows
         new.counts[k] = old.counts[k]
-    for k in range(5):
+    for k in range(SOLVER_STATISTICS):
         new.solver[k] = old.solver[k]
 
 

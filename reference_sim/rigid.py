@@ -23,6 +23,7 @@ import numpy as np
 
 from reference_sim.contact import (
     GRID_MIN_BODIES,
+    SOLVER_STATISTICS,
     after_drift,
     before_drift,
     contact_buffers,
@@ -242,7 +243,7 @@ def run_rigid(model, integrator, x, q, v, L, dt, n_steps, stride):
     threshold = BOUNCE_STEPS * math.sqrt(dot(vec(model.gravity), vec(model.gravity))) * dt
     if not model.contact:
         _free_steps(model, integrator, x, q, v, L, dt, n_steps, stride, out, steps)
-        return steps, out, np.zeros(4, dtype=np.int64)
+        return steps, out, np.zeros(SOLVER_STATISTICS, dtype=np.int64)
     nb = x.shape[0]
     buf = contact_buffers(nb, 8 * nb + 16, 4 * nb + 16)
     _record(model, x, q, v, L, out[0])
