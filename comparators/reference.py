@@ -15,6 +15,7 @@ from reference_sim.contact import (
     STALL_PROGRESS,
     STALL_SWEEPS,
     SUBSPACE_FIRST,
+    SUBSPACE_MIN_BODIES,
     SUBSPACE_STEPS,
     TREND_AGREEMENT,
     TREND_NOISE,
@@ -106,7 +107,8 @@ def _contact_settings(scene: Scene, integrator: str, dt: float) -> dict:
         "solver": "projected Gauss-Seidel, warm-started, with subspace steps and extrapolation",
         "subspace_steps": (
             f"after unconverged sweeps {SUBSPACE_FIRST} to "
-            f"{SUBSPACE_FIRST + SUBSPACE_STEPS - 1} of a solve"
+            f"{SUBSPACE_FIRST + SUBSPACE_STEPS - 1} of a solve, in scenes of "
+            f"{SUBSPACE_MIN_BODIES} bodies or more"
         ),
         "warm_start": (
             "last step's impulses, plus last step's change where the last two changes differ "

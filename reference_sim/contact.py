@@ -34,8 +34,8 @@ momentum (dL = r x P). A contact that sticks is solved as one 3 x 3 block (norma
 together); one that slides, normal first, then friction. Sweeps skip the contacts far from
 acting until the rest have converged (IDLE_MARGIN). Early in a solve a few subspace steps
 solve the contacts that push all together, directly (`_subspace_step`), for the slow modes of
-stacks; once the sweeps converge at a steady rate, the impulses are extrapolated along it
-(`_extrapolate`). They work in `ContactBuffers`, allocated once per run.
+stacks (scenes of two bodies or more); once the sweeps converge at a steady rate, the impulses
+are extrapolated along it (`_extrapolate`). They work in `ContactBuffers`, allocated once per run.
 """
 
 import math
@@ -128,7 +128,8 @@ RATE_MAX = 0.98
 # which some contact starts from last step's impulses has no such sweep and takes its first
 # step after sweep SUBSPACE_FIRST_WARM: `cube_stack` 3,414 sweeps and 622 steps instead of
 # 5,083 and 628 (`euler`), 2,247 and 242 instead of 3,321 and 567 (`splitting`), 10 % less
-# time; `dropped_cube` 1,596 sweeps instead of 1,805; a cube set on a floor rests as before.
+# time; `dropped_cube` 1,596 sweeps instead of 1,805 (it now takes none: SUBSPACE_MIN_BODIES);
+# a cube set on a floor rests as before.
 # Without a cap, post-drift solves could cycle between a step and its projection up to the limit
 # (4 solves). No step when every pushing contact slides: their friction is held fixed, and it
 # is what the sweeps are still adjusting (`incline`: 14 % fewer sweeps, each step 1.3x slower).
@@ -139,6 +140,16 @@ SUBSPACE_STEPS = 5
 # It bounds the system at 96 unknowns (a 74 kB matrix, about 1.5e5 multiply-adds to factor);
 # the catalog's subspaces have at most 8 bodies (`cube_rain_8`), its stack 5.
 SUBSPACE_MAX_BODIES = 16
+# Scenes of fewer bodies than this take no subspace step: one body's contacts (an edge's two
+# corners, a face's four) pin its 6 unknowns, which Gauss-Seidel settles in a few sweeps, and a
+# step costs about ten sweeps (one body: 670 to 900 ns, against 33 to 118 ns for a sweep of 2 to
+# 4 contacts). `dropped_cube` takes 2,400 sweeps without steps instead of 1,464 and 265 steps
+# (`euler`), 3,606 instead of 1,823 and 468 (`splitting`). Medians of interleaved whole runs,
+# builds without its steps against with: `euler` 7 to 27 % faster in 8 of 9 comparisons (5 %
+# slower in one), `splitting` 22 to 30 % faster in all 7 (1.35 against 1.86 us a step in the
+# last). The other single-body cases took at most 24 steps a run. Decided per scene, before any
+# call: a call alone, passing every buffer, costs about 100 ns.
+SUBSPACE_MIN_BODIES = 2
 # Regularisation of the subspace's equalities, relative to the largest contact inverse mass:
 # the four corners of a face make them redundant (singular), and the regularised solve picks
 # the smallest impulse change. It leaves about this fraction, over the smallest nonzero
@@ -1194,10 +1205,13 @@ def _solve(model, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm):
     Impulses start from those of the same contacts in the previous steps (`warm_keys`,
     `warm_lam`, `_trend`): a body resting on a plane converges in one sweep. The first subspace
     step may follow the first sweep if some contact matched (SUBSPACE_FIRST_WARM), else the
-    second. Counts the solve in `buf.solver`."""
+    second; none in a scene of fewer than SUBSPACE_MIN_BODIES bodies. Counts the solve in
+    `buf.solver`."""
     tolerance = solver_tolerance(dt)
     warm = _warm_start(model, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance)
     first = SUBSPACE_FIRST_WARM if warm > 0 else SUBSPACE_FIRST
+    if v.shape[0] < SUBSPACE_MIN_BODIES:
+        first = MAX_ITERATIONS + 1  # after no sweep
     sweeps, converged = _iterate(model, nc, buf, v, L, tolerance, IDLE_MARGIN, first)
     buf.solver[0] += 1
     buf.solver[1] += sweeps
