@@ -100,6 +100,8 @@ def test_reference_stack_stands(integrator):
     # every contact solve converged (Gauss-Seidel without subspace steps left 41 of euler's
     # 2000 at MAX_ITERATIONS) ...
     assert traj.meta.solver["at_limit"] == 0
+    # the stack's solves take subspace steps (scenes of SUBSPACE_MIN_BODIES bodies or more)
+    assert traj.meta.solver["subspace_per_solve"] > 0
     # ... so the stack at rest stays put: its velocities are within the solver's tolerance of
     # 0 every step, and the top cube moves less than that speed, ten times over (the sweeps
     # stop on the last sweep's change, not on the remaining error), for the whole run
