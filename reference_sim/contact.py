@@ -473,20 +473,24 @@ def _speed(rows, a, b, v, omega):
     return u
 
 
-@kernel
-def _push(model, rows, a, b, v, L, omega, lam):
-    """Apply the impulse lam along the direction of Jacobian `rows` to both bodies
-    (dL = r x P)."""
-    along_a = lam / model.body_mass[a]
-    along_b = lam / model.body_mass[b] if b >= 0 else 0.0
+@inlined_kernel
+def _push(model, jac, a, b, v, L, omega, p0, p1, p2):
+    """Apply the impulse changes p0 (normal), p1, p2 (tangents) along a contact's Jacobian
+    `jac` (3, 5, 3) to both bodies (dL = r x P): summed per body first, then each of v, L and
+    omega changed once. (One push per direction, each changing them: `dropped_cube` 1.02 against
+    0.97 us a step, `euler`, 1.42 against 1.35 `splitting`, medians of interleaved whole runs.)
+    Inlined: a call passing `Model` by value made `dropped_cube` 1.6 times slower."""
+    along_a = 1.0 / model.body_mass[a]
+    along_b = 1.0 / model.body_mass[b] if b >= 0 else 0.0
     for i in range(3):
-        v[a, i] += along_a * rows[0, i]
-        L[a, i] += lam * rows[1, i]
-        omega[a, i] += lam * rows[2, i]
+        force = p0 * jac[0, 0, i] + p1 * jac[1, 0, i] + p2 * jac[2, 0, i]
+        v[a, i] += along_a * force
+        L[a, i] += p0 * jac[0, 1, i] + p1 * jac[1, 1, i] + p2 * jac[2, 1, i]
+        omega[a, i] += p0 * jac[0, 2, i] + p1 * jac[1, 2, i] + p2 * jac[2, 2, i]
         if b >= 0:
-            v[b, i] -= along_b * rows[0, i]
-            L[b, i] -= lam * rows[3, i]
-            omega[b, i] -= lam * rows[4, i]
+            v[b, i] -= along_b * force
+            L[b, i] -= p0 * jac[0, 3, i] + p1 * jac[1, 3, i] + p2 * jac[2, 3, i]
+            omega[b, i] -= p0 * jac[0, 4, i] + p1 * jac[1, 4, i] + p2 * jac[2, 4, i]
 
 
 @kernel
@@ -577,11 +581,11 @@ def _set_impulses(model, buf, k, p0, p1, p2, v, L):
     >= 0, friction in the Coulomb disc), and apply their changes to v and L."""
     p0 = max(p0, 0.0)
     p1, p2 = _into_disc(model.friction, p0, p1, p2)
-    a, b = buf.cands[k, 0], buf.cands[k, 2]
-    for d, p in ((0, p0), (1, p1), (2, p2)):
-        if p != buf.lam[k, d]:
-            _push(model, buf.jac[k, d], a, b, v, L, buf.omega, p - buf.lam[k, d])
-            buf.lam[k, d] = p
+    lam = buf.lam[k]
+    d0, d1, d2 = p0 - lam[0], p1 - lam[1], p2 - lam[2]
+    if d0 != 0.0 or d1 != 0.0 or d2 != 0.0:
+        _push(model, buf.jac[k], buf.cands[k, 0], buf.cands[k, 2], v, L, buf.omega, d0, d1, d2)
+        lam[0], lam[1], lam[2] = p0, p1, p2
 
 
 @kernel
@@ -768,9 +772,7 @@ def _update(model, buf, k, v, L, change):
         if n0 >= 0.0 and n1 * n1 + n2 * n2 <= (model.friction * n0) ** 2:
             d0, d1, d2 = n0 - lam[k, 0], n1 - lam[k, 1], n2 - lam[k, 2]
             lam[k, 0], lam[k, 1], lam[k, 2] = n0, n1, n2
-            _push(model, normal, a, b, v, L, omega, d0)
-            _push(model, tangent1, a, b, v, L, omega, d1)
-            _push(model, tangent2, a, b, v, L, omega, d2)
+            _push(model, jac[k], a, b, v, L, omega, d0, d1, d2)
             change = max(change, math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) * kn[k])
             buf.slack[k] = -math.inf
             return change, True
@@ -780,7 +782,7 @@ def _update(model, buf, k, v, L, change):
     dl = new - lam[k, 0]
     if dl != 0.0:
         lam[k, 0] = new
-        _push(model, normal, a, b, v, L, omega, dl)
+        _push(model, jac[k], a, b, v, L, omega, dl, 0.0, 0.0)
         change = max(change, abs(dl) * kn[k])
     # a contact that does not push and had no friction keeps none: its disc is a point. (22 %
     # of the updates from 100 states of `cube_rain_8`, whose candidates mostly do not push;
@@ -806,8 +808,7 @@ def _update(model, buf, k, v, L, change):
     d1, d2 = f1 - lam[k, 1], f2 - lam[k, 2]
     lam[k, 1], lam[k, 2] = f1, f2
     if d1 != 0.0 or d2 != 0.0:
-        _push(model, tangent1, a, b, v, L, omega, d1)
-        _push(model, tangent2, a, b, v, L, omega, d2)
+        _push(model, jac[k], a, b, v, L, omega, 0.0, d1, d2)
         # kn, the normal's inverse mass, scales impulses to speeds like the tangents' would
         change = max(change, math.sqrt(d1 * d1 + d2 * d2) * kn[k])
     return change, False
@@ -1172,13 +1173,11 @@ def _warm_start(model, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance):
                 for d in range(3):
                     buf.hist[k, age, d] = warm_lam[at, age, d]
             warm += 1
-            start = _trend(model, warm_lam, at, buf.kn[k], tolerance)
-            for d in range(3):
-                lam = start[d]
-                buf.lam[k, d] = lam
-                if lam != 0.0:
-                    a, b = buf.cands[k, 0], buf.cands[k, 2]
-                    _push(model, buf.jac[k, d], a, b, v, L, buf.omega, lam)
+            p0, p1, p2 = _trend(model, warm_lam, at, buf.kn[k], tolerance)
+            buf.lam[k, 0], buf.lam[k, 1], buf.lam[k, 2] = p0, p1, p2
+            if p0 != 0.0 or p1 != 0.0 or p2 != 0.0:
+                a, b = buf.cands[k, 0], buf.cands[k, 2]
+                _push(model, buf.jac[k], a, b, v, L, buf.omega, p0, p1, p2)
     return warm
 
 
