@@ -7,6 +7,11 @@ from comparators.engine import register
 from comparators.parity import body_readback
 from comparators.trajectory import RunMeta, Trajectory, package_versions
 from reference_sim.contact import (
+    CYCLE_AGREEMENT,
+    CYCLE_MAX_PERIOD,
+    CYCLE_MIN_SWEEPS,
+    CYCLE_PERIODS,
+    CYCLE_START,
     IDLE_MARGIN,
     MAX_ITERATIONS,
     RATE_AGREEMENT,
@@ -127,6 +132,11 @@ def _contact_settings(scene: Scene, integrator: str, dt: float) -> dict:
         "stall": (
             f"stops unconverged after {STALL_SWEEPS} sweeps in which the bodies' velocity "
             f"change has not fallen below {STALL_PROGRESS} of its last low"
+        ),
+        "cycle": (
+            f"from sweep {CYCLE_START} on, stops unconverged once the velocity change of "
+            f"{CYCLE_PERIODS} periods' worth of sweeps (at least {CYCLE_MIN_SWEEPS}), for a "
+            f"period up to {CYCLE_MAX_PERIOD}, repeats within {CYCLE_AGREEMENT:g}"
         ),
         # m/s; the kernel's Python code: stating a setting should compile nothing
         "tolerance": solver_tolerance.py_func(dt),

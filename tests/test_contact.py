@@ -309,17 +309,45 @@ def _rerun_in_python(monkeypatch, step, **settings):
     return step.buf.solver - solver
 
 
-def test_a_stalled_solve_is_one_the_iteration_limit_would_not_have_seen_converge(monkeypatch):
-    """`cube_rain_8`'s first solve that stops unconverged stops on the stall rule (before
-    MAX_ITERATIONS), and is one that cycles: the same step, its solves run again from the same
-    state without the rule (the kernels' Python code, STALL_SWEEPS out of reach), still ends
-    with a solve at MAX_ITERATIONS."""
+def _copy(step):
+    """`step` with its state and buffers copied (a rerun changes them in place)."""
+    buf = contact.ContactBuffers(*(a.copy() for a in step.buf))
+    return step._replace(state=[a.copy() for a in step.state], buf=buf)
+
+
+def test_a_solve_stopped_unconverged_is_one_the_iteration_limit_would_not_have_seen_converge(
+    monkeypatch,
+):
+    """`cube_rain_8`'s first solve that stops unconverged stops on the cycle rule, before the
+    stall rule would have stopped it and before MAX_ITERATIONS, and is one that cycles: the same
+    step, its solves run again from the same state without the rules (the kernels' Python code,
+    CYCLE_START and STALL_SWEEPS out of reach), still ends with a solve at MAX_ITERATIONS."""
     step = _first_rain_step_counting(2)
     solves, sweeps = step.counted[:2].tolist()
-    assert sweeps < solves * contact.MAX_ITERATIONS  # stopped early: stalled
-    without_rule = _rerun_in_python(monkeypatch, step, STALL_SWEEPS=10**9)
-    assert without_rule[2] > 0
-    assert without_rule[1] >= contact.MAX_ITERATIONS
+    assert sweeps < solves * contact.MAX_ITERATIONS  # stopped early
+    stall_rule_only = _rerun_in_python(monkeypatch, _copy(step), CYCLE_START=10**9)
+    assert stall_rule_only[2] > 0
+    assert sweeps < stall_rule_only[1] < solves * contact.MAX_ITERATIONS
+    monkeypatch.undo()
+    without_rules = _rerun_in_python(monkeypatch, step, STALL_SWEEPS=10**9, CYCLE_START=10**9)
+    assert without_rules[2] > 0
+    assert without_rules[1] >= contact.MAX_ITERATIONS
+
+
+def test_the_cycle_rule_flags_a_repeating_velocity_change_and_not_a_shrinking_one():
+    """Period 3 is flagged once two periods' worth of sweeps repeat the one before (the 6th
+    repeat, at the 9th sweep); changes shrinking by 0.9 a sweep, or by more than
+    CYCLE_AGREEMENT, never are; shrinking by less counts as repeating (a change that takes
+    over 690 sweeps to halve: the stall rule stops it after STALL_SWEEPS)."""
+    record = np.zeros((2, contact.CYCLE_MAX_PERIOD))
+    period = (0.5, 0.3, 0.1)
+    flags = [contact._cycles(record, n, period[n % 3]) for n in range(12)]
+    assert flags.index(True) == 8
+    for rate in (0.9, 1.0 - 2.0 * contact.CYCLE_AGREEMENT):
+        assert not any(contact._cycles(record, n, rate**n) for n in range(200))
+    slow = 1.0 - 0.5 * contact.CYCLE_AGREEMENT
+    flags = [contact._cycles(record, n, slow**n) for n in range(20)]
+    assert flags.index(True) == contact.CYCLE_MIN_SWEEPS
 
 
 # Both solves stop once a sweep changes no speed by the solver tolerance; Gauss-Seidel at a
