@@ -924,7 +924,7 @@ def _extrapolate(model, buf, n, v, L, factor):
 def _iterate(model, nc, buf, v, L, tolerance, idle_margin, first=SUBSPACE_FIRST):
     """Gauss-Seidel sweeps until no impulse changes a speed by `tolerance` (m/s), or no body's
     velocity changes by that much over a sweep; returns the sweeps used and whether the solve
-    converged (else it reached MAX_ITERATIONS or stalled: STALL_SWEEPS).
+    converged (else it reached MAX_ITERATIONS, stalled (STALL_SWEEPS) or cycled (`_cycles`)).
 
     Sweeps visit the busy contacts only (`_busy`, with margin `idle_margin` times the last
     sweep's largest speed change; IDLE_MARGIN), and the idle ones too once the busy ones pass
@@ -1030,8 +1030,8 @@ class ContactBuffers(NamedTuple):
     three steps (C, 3, 3) (age, direction) before and after the drift, of counts[0] and
     counts[1] contacts, in key order. counts[2]: how many rows of `pairs` the caller filled for
     this step, or -1 to have them found pair by pair.
-    solver (5,): solves, sweeps, solves stopped unconverged (at MAX_ITERATIONS or stalled:
-    STALL_SWEEPS), subspace steps and extrapolations, summed over the run.
+    solver (5,): solves, sweeps, solves stopped unconverged (at MAX_ITERATIONS, stalled:
+    STALL_SWEEPS, or cycling: `_cycles`), subspace steps and extrapolations, summed over the run.
     The subspace step (`_subspace_step`): rows (3C, 2) (contact, direction), row_jac (3C, 12)
     and row_lam (3C,) per row, slot (B,) each body's place in it (-1: not in it), normal
     (6S, 6S) and rhs (6S,), S = min(B, SUBSPACE_MAX_BODIES). cycle (2, CYCLE_MAX_PERIOD): the
