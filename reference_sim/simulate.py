@@ -40,8 +40,8 @@ class SimResult(NamedTuple):
       samples: (S, B, 13) per body x (3), q (4, w first), v (3), world omega (3).
       shape_error: (S, B) largest relative change of an inter-particle distance (seed only).
       solver: the contact solver's statistics (rigid integrators only): solves, Gauss-Seidel
-        sweeps, solves stopped unconverged (at MAX_ITERATIONS or stalled), subspace steps and
-        extrapolations, over the run.
+        sweeps, solves stopped unconverged (at MAX_ITERATIONS, stalled or cycling), subspace
+        steps and extrapolations, over the run.
       state: the final state.  compile_s: time spent compiling or loading compiled code (s).
       wall_s: time spent stepping alone (s).
     """
