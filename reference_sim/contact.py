@@ -1024,9 +1024,9 @@ class ContactBuffers(NamedTuple):
     gap, target, bounce (C,), active, acting (C,), lam (C, 3), hist (C, 2, 3) (its impulses of
     the two steps before, NaN: none), made (C,) (the key of the contact whose gap, rows and
     inverse masses row k holds, -1: none; rows below counts[3] hold them for the current pose:
-    `after_drift` sets it, every drift clears it), slack (C,) (its normal speed above its target
-    when it does not push, -inf when it does), busy (2C,) (`_iterate`'s contacts: busy ones from
-    the start, idle ones from the end);
+    `after_drift` sets it, a drift clears it unless it moved no body), slack (C,) (its normal
+    speed above its target when it does not push, -inf when it does), busy (2C,) (`_iterate`'s
+    contacts: busy ones from the start, idle ones from the end);
     bodies (B, 6), v and omega at a sweep's start; lam_sweep (C, 3), the impulses at the start
     of a sweep that `_extrapolate` follows. The warm start: keys and impulses of the last
     three steps (C, 3, 3) (age, direction) before and after the drift, of counts[0] and
@@ -1037,7 +1037,7 @@ class ContactBuffers(NamedTuple):
     The subspace step (`_subspace_step`): rows (3C, 2) (contact, direction), row_jac (3C, 12)
     and row_lam (3C,) per row, slot (B,) each body's place in it (-1: not in it), normal
     (6S, 6S) and rhs (6S,), S = min(B, SUBSPACE_MAX_BODIES). cycle (2, CYCLE_MAX_PERIOD): the
-    cycle test's record (`_cycles`).
+    cycle test's record (`_cycles`). pose (B, 7): each body's x and q before the drift.
     """
 
     rot: np.ndarray
@@ -1077,6 +1077,7 @@ class ContactBuffers(NamedTuple):
     normal: np.ndarray
     rhs: np.ndarray
     cycle: np.ndarray
+    pose: np.ndarray
 
 
 @compiled
@@ -1123,6 +1124,7 @@ def contact_buffers(n_bodies, capacity, pair_capacity):
         np.zeros((6 * s, 6 * s)),
         np.zeros(6 * s),
         np.zeros((2, CYCLE_MAX_PERIOD)),
+        np.zeros((n_bodies, 7)),
     )
 
 
@@ -1302,9 +1304,11 @@ def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
 def after_drift(model, x, q, v, L, nc, dt, buf):
     """Impulses after the drift on the contacts that pushed before it or bounce
     (`buf.acting`) or touch now (gap below TOUCH_TOLERANCE): the bounce targets of
-    `before_drift`, else inelastic (normal speed >= 0, and friction). Changes v and L."""
+    `before_drift`, else inelastic (normal speed >= 0, and friction). Changes v and L. Keeps
+    the rows below `buf.counts[3]`: the caller vouches that the drift moved no body since
+    `before_drift` assembled them."""
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
-    _assemble(model, x, nc, TOUCH_TOLERANCE, buf, 0)
+    _assemble(model, x, nc, TOUCH_TOLERANCE, buf, buf.counts[3])
     buf.counts[3] = nc  # rows for the current pose, until the next drift
     for k in range(nc):
         buf.target[k] = buf.bounce[k]
