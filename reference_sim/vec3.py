@@ -79,6 +79,15 @@ def cross(a, b):
 
 
 @kernel
+def tangents(n):
+    """Two unit vectors completing the unit vector n to a right-handed orthonormal basis."""
+    helper = (1.0, 0.0, 0.0) if abs(n[0]) < 0.57735 else (0.0, 1.0, 0.0)
+    t1 = cross(n, helper)
+    t1 = scale(1.0 / math.sqrt(dot(t1, t1)), t1)
+    return t1, cross(n, t1)
+
+
+@kernel
 def mat_vec(m, v):
     """m v."""
     return (
