@@ -64,6 +64,24 @@ def test_particles_of_one_body_never_collide():
     assert errors["orientation_error_deg"].max() < 1e-6
 
 
+# A frame of three unit vectors built in float64: orthonormal to a few ulps.
+FRAME_ATOL = 1e-15
+
+
+def test_plane_contacts_frames_are_orthonormal_and_right_handed():
+    """Each plane's fixed contact frame (normal, `Model.plane_tangents`) in every catalog scene,
+    floors, box walls and the inclines' tilted planes: orthonormal, with t1 x t2 = n."""
+    planes = 0
+    for scene in CATALOG.values():
+        model = model_from_scene(scene)
+        for n, (t1, t2) in zip(model.plane_normals, model.plane_tangents, strict=True):
+            frame = np.array([n, t1, t2])
+            np.testing.assert_allclose(frame @ frame.T, np.eye(3), atol=FRAME_ATOL)
+            np.testing.assert_allclose(np.cross(t1, t2), n, atol=FRAME_ATOL)
+            planes += 1
+    assert planes > 0
+
+
 def test_gauss_seidel_ends_on_targets_no_rigid_motion_meets():
     """The four corners of a resting cube's face asked for normal speeds 0, 0, 0 and 1e-5 m/s: a
     rigid face's corner speeds satisfy v0 + v3 = v1 + v2, so these disagree by 1e-5 m/s. Once
