@@ -271,38 +271,43 @@ def _all_pairs_into(model, x, reach, pairs):
 @kernel
 def _grid_pairs_into(model, x, reach, cells, dims, order, sorted_keys, found, pairs):
     """The pairs of `_all_pairs_into`, in the same order, testing only bodies in neighbouring
-    grid cells (`cells`: each body's cell; `sorted_keys`: cell keys in `order`)."""
+    grid cells (`cells`: each body's cell; `sorted_keys`: cell keys in `order`).
+
+    Cells are numbered along z first, so the three neighbouring cells of one (x, y) column are
+    consecutive keys: one binary search per column finds them (nine a body, not 27)."""
     nb = x.shape[0]
     n = 0
     for a in range(nb):
         m = 0
+        z_lo, z_hi = max(cells[a, 2] - 1, 0), min(cells[a, 2] + 1, dims[2] - 1)
         for dx in range(-1, 2):
             cx = cells[a, 0] + dx
+            if cx < 0 or cx >= dims[0]:
+                continue
             for dy in range(-1, 2):
                 cy = cells[a, 1] + dy
-                for dz in range(-1, 2):
-                    cz = cells[a, 2] + dz
-                    if min(cx, cy, cz) < 0 or cx >= dims[0] or cy >= dims[1] or cz >= dims[2]:
-                        continue
-                    key = (cx * dims[1] + cy) * dims[2] + cz
-                    lo, hi = 0, nb  # first position with sorted_keys >= key
-                    while lo < hi:
-                        mid = (lo + hi) // 2
-                        if sorted_keys[mid] < key:
-                            lo = mid + 1
-                        else:
-                            hi = mid
-                    while lo < nb and sorted_keys[lo] == key:
-                        b = order[lo]
-                        if b > a and _near(model, x, reach, a, b):
-                            # insertion keeps found[:m] sorted: pairs come out in index order
-                            at = m
-                            while at > 0 and found[at - 1] > b:
-                                found[at] = found[at - 1]
-                                at -= 1
-                            found[at] = b
-                            m += 1
-                        lo += 1
+                if cy < 0 or cy >= dims[1]:
+                    continue
+                column = (cx * dims[1] + cy) * dims[2]
+                first, last = column + z_lo, column + z_hi
+                lo, hi = 0, nb  # first position with sorted_keys >= first
+                while lo < hi:
+                    mid = (lo + hi) // 2
+                    if sorted_keys[mid] < first:
+                        lo = mid + 1
+                    else:
+                        hi = mid
+                while lo < nb and sorted_keys[lo] <= last:
+                    b = order[lo]
+                    if b > a and _near(model, x, reach, a, b):
+                        # insertion keeps found[:m] sorted: pairs come out in index order
+                        at = m
+                        while at > 0 and found[at - 1] > b:
+                            found[at] = found[at - 1]
+                            at -= 1
+                        found[at] = b
+                        m += 1
+                    lo += 1
         for k in range(m):
             if n < pairs.shape[0]:
                 pairs[n, 0], pairs[n, 1] = a, found[k]
