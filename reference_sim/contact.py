@@ -191,6 +191,9 @@ SOLVER_STATISTICS = 5
 # Scenes with at least this many bodies find close body pairs on a uniform grid (linear in the
 # number of bodies); fewer are tested pair by pair, which is faster for a handful.
 GRID_MIN_BODIES = 16
+# The grid has at most this many cells a body (its cell table is 8 bytes a cell): scenes spread
+# wider get coarser cells, which only add candidate tests. `cube_rain_1000` fills 1,296 cells.
+GRID_CELLS_PER_BODY = 8
 # A contact that does not push and whose normal speed exceeds its target by more than this many
 # times the last sweep's largest speed change is idle: sweeps skip it until the busy contacts
 # have converged, and then one pass over the idle ones decides whether the solve has (the
@@ -269,12 +272,11 @@ def _all_pairs_into(model, x, reach, pairs):
 
 
 @kernel
-def _grid_pairs_into(model, x, reach, cells, dims, order, sorted_keys, found, pairs):
+def _grid_pairs_into(model, x, reach, cells, dims, order, cell_start, found, pairs):
     """The pairs of `_all_pairs_into`, in the same order, testing only bodies in neighbouring
-    grid cells (`cells`: each body's cell; `sorted_keys`: cell keys in `order`).
-
-    Cells are numbered along z first, so the three neighbouring cells of one (x, y) column are
-    consecutive keys: one binary search per column finds them (nine a body, not 27)."""
+    grid cells (`cells`: each body's cell; the bodies of cell c are `order[cell_start[c]:
+    cell_start[c + 1]]`). Cells are numbered along z first, so the three neighbouring cells of
+    an (x, y) column are one run of `order`."""
     nb = x.shape[0]
     n = 0
     for a in range(nb):
@@ -289,16 +291,8 @@ def _grid_pairs_into(model, x, reach, cells, dims, order, sorted_keys, found, pa
                 if cy < 0 or cy >= dims[1]:
                     continue
                 column = (cx * dims[1] + cy) * dims[2]
-                first, last = column + z_lo, column + z_hi
-                lo, hi = 0, nb  # first position with sorted_keys >= first
-                while lo < hi:
-                    mid = (lo + hi) // 2
-                    if sorted_keys[mid] < first:
-                        lo = mid + 1
-                    else:
-                        hi = mid
-                while lo < nb and sorted_keys[lo] <= last:
-                    b = order[lo]
+                for at_b in range(cell_start[column + z_lo], cell_start[column + z_hi + 1]):
+                    b = order[at_b]
                     if b > a and _near(model, x, reach, a, b):
                         # insertion keeps found[:m] sorted: pairs come out in index order
                         at = m
@@ -307,7 +301,6 @@ def _grid_pairs_into(model, x, reach, cells, dims, order, sorted_keys, found, pa
                             at -= 1
                         found[at] = b
                         m += 1
-                    lo += 1
         for k in range(m):
             if n < pairs.shape[0]:
                 pairs[n, 0], pairs[n, 1] = a, found[k]
@@ -328,79 +321,88 @@ def all_pairs(model, x, reach):
 
 
 @kernel
-def _bin(model, x, reach, cells, dims, keys):
-    """Each body's grid cell and its key (cells numbered along z, then y, then x); False if
-    the grid would be unbounded (NaN or far-flung bodies)."""
+def _bin(model, x, reach, cells, dims, keys, max_cells):
+    """Each body's grid cell and its key (cells numbered along z, then y, then x), on cubic
+    cells as wide as the largest interaction distance, doubled until there are at most
+    `max_cells`; returns the number of cells, or 0 if the grid would be unbounded (NaN or
+    infinite coordinates)."""
     nb = x.shape[0]
     cell = 0.0
     for b in range(nb):
         cell = max(cell, 2.0 * (model.bound_radius[b] + reach[b]))
+    if not (cell > 0.0 and math.isfinite(cell)):
+        return 0
     for k in range(3):
-        lo, hi = x[0, k], x[0, k]
         for b in range(nb):
             if not math.isfinite(x[b, k]):
-                return False
-            lo, hi = min(lo, x[b, k]), max(hi, x[b, k])
-        span = (hi - lo) / cell
-        if not span < 2.0**20:  # more cells than an int64 key can number
-            return False
-        dims[k] = int(span) + 1
+                return 0
+    (lo0, hi0), (lo1, hi1), (lo2, hi2) = _extent(x, 0), _extent(x, 1), _extent(x, 2)
+    lo, span = (lo0, lo1, lo2), (hi0 - lo0, hi1 - lo1, hi2 - lo2)
+    for k in range(3):
+        if not math.isfinite(span[k]):
+            return 0
+    while (math.floor(span[0] / cell) + 1.0) * (math.floor(span[1] / cell) + 1.0) * (
+        math.floor(span[2] / cell) + 1.0
+    ) > max_cells:
+        cell *= 2.0
+    for k in range(3):
+        dims[k] = int(math.floor(span[k] / cell)) + 1
         for b in range(nb):
-            cells[b, k] = min(int((x[b, k] - lo) / cell), dims[k] - 1)
+            cells[b, k] = min(int((x[b, k] - lo[k]) / cell), dims[k] - 1)
     for b in range(nb):
         keys[b] = (cells[b, 0] * dims[1] + cells[b, 1]) * dims[2] + cells[b, 2]
-    return True
+    return dims[0] * dims[1] * dims[2]
 
 
 @kernel
-def _sort_by_key(keys, order, sorted_keys):
-    """order: indices sorting `keys` (heapsort, in place), and the keys in that order."""
-    n = keys.shape[0]
-    for i in range(n):
-        order[i] = i
+def _extent(x, k):
+    """The smallest and largest coordinate k of the bodies."""
+    lo, hi = x[0, k], x[0, k]
+    for b in range(x.shape[0]):
+        lo, hi = min(lo, x[b, k]), max(hi, x[b, k])
+    return lo, hi
 
-    def sift(start, end):
-        root = start
-        while 2 * root + 1 < end:
-            child = 2 * root + 1
-            if child + 1 < end and keys[order[child + 1]] > keys[order[child]]:
-                child += 1
-            if keys[order[root]] >= keys[order[child]]:
-                return
-            order[root], order[child] = order[child], order[root]
-            root = child
 
-    for start in range(n // 2 - 1, -1, -1):
-        sift(start, n)
-    for end in range(n - 1, 0, -1):
-        order[0], order[end] = order[end], order[0]
-        sift(0, end)
-    for i in range(n):
-        sorted_keys[i] = keys[order[i]]
+@kernel
+def _sort_by_cell(keys, cell_start, order):
+    """Counting sort: the bodies of cell c are order[cell_start[c]:cell_start[c + 1]], in
+    index order (`cell_start` zeroed, one longer than the number of cells)."""
+    for b in range(keys.shape[0]):
+        cell_start[keys[b] + 1] += 1
+    for c in range(1, cell_start.shape[0]):
+        cell_start[c] += cell_start[c - 1]
+    for b in range(keys.shape[0]):  # cell_start[c] counts the bodies of cell c placed so far
+        order[cell_start[keys[b]]] = b
+        cell_start[keys[b]] += 1
+    for c in range(cell_start.shape[0] - 1, 0, -1):
+        cell_start[c] = cell_start[c - 1]
+    cell_start[0] = 0
 
 
 @compiled
 def grid_pairs(model, x, reach):
-    """`all_pairs`, found on a uniform grid: bodies are binned into cubic cells as wide as the
-    largest interaction distance and only bodies in neighbouring cells are tested, so the cost
-    grows linearly with the number of bodies. Same result (tested), so the simulation is
-    bit-equal either way. Without a bounded grid (NaN or far-flung bodies) it tests every pair.
+    """`all_pairs`, found on a uniform grid: bodies are binned into cubic cells at least as wide
+    as the largest interaction distance (`_bin`) and only bodies in neighbouring cells are
+    tested, so the cost grows linearly with the number of bodies. Same result (tested), so the
+    simulation is bit-equal either way. Without a bounded grid (NaN or infinite coordinates) it
+    tests every pair.
     """
     nb = x.shape[0]
     dims = np.ones(3, dtype=np.int64)
     cells = np.zeros((nb, 3), dtype=np.int64)
     keys = np.empty(nb, dtype=np.int64)
-    if nb == 0 or not _bin(model, x, reach, cells, dims, keys):
+    n_cells = 0 if nb == 0 else _bin(model, x, reach, cells, dims, keys, GRID_CELLS_PER_BODY * nb)
+    if n_cells == 0:
         return all_pairs(model, x, reach)
     order = np.empty(nb, dtype=np.int64)
-    sorted_keys = np.empty(nb, dtype=np.int64)
-    _sort_by_key(keys, order, sorted_keys)
+    cell_start = np.zeros(n_cells + 1, dtype=np.int64)
+    _sort_by_cell(keys, cell_start, order)
     found = np.empty(nb, dtype=np.int64)
     pairs = np.empty((2 * nb + 16, 2), dtype=np.int64)
-    n = _grid_pairs_into(model, x, reach, cells, dims, order, sorted_keys, found, pairs)
+    n = _grid_pairs_into(model, x, reach, cells, dims, order, cell_start, found, pairs)
     if n > pairs.shape[0]:
         pairs = np.empty((n, 2), dtype=np.int64)
-        _grid_pairs_into(model, x, reach, cells, dims, order, sorted_keys, found, pairs)
+        _grid_pairs_into(model, x, reach, cells, dims, order, cell_start, found, pairs)
     return pairs[:n]
 
 

@@ -164,7 +164,9 @@ def test_grid_finds_the_same_body_pairs():
         np.testing.assert_array_equal(grid, every)
 
 
-def test_grid_falls_back_on_far_flung_and_nan_bodies():
+def test_grid_matches_pairwise_on_far_flung_and_nan_bodies():
+    """A body 1e9 m away coarsens the grid to a few cells; a NaN one leaves no grid (every pair
+    tested): the pairs are the pairwise ones either way."""
     model, state = _state(crowd())
     reach = _reach(model, state, 0.005)
     far = state.x.copy()
