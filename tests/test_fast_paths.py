@@ -2,8 +2,9 @@
 
 - Free flight: the compiled step loop (tuple arithmetic, principal-frame splitting) against a
   plain numpy transliteration of each integrator's formulas (`straightforward_step` below).
-- Broadphase: body pairs found on the uniform grid are exactly those found pair by pair, and a
-  crowded scene stepped with either is bit-equal.
+- Broadphase: body pairs found on the uniform grid (coarsened to its cell budget when the bodies
+  spread wide) are exactly those found pair by pair, and a crowded scene stepped with either
+  is bit-equal.
 - Contact rows: a step's first assembly keeps the rows the last step's second made (the bodies
   have not moved since), and its second those of its first if the drift moved no body; runs
   are bit-equal to runs whose first assemblies keep none, and every row a step leaves is what
@@ -21,11 +22,13 @@ from cases import CATALOG, Body, Contact, Scene
 from cases.builders import box_corners, box_walls
 from comparators.reference import model_from_scene
 from reference_sim.contact import (
+    GRID_CELLS_PER_BODY,
     GRID_MIN_BODIES,
     IDLE_MARGIN,
     TOUCH_TOLERANCE,
     ContactBuffers,
     _assemble,
+    _bin,
     _iterate,
     all_pairs,
     contact_buffers,
@@ -162,6 +165,25 @@ def test_grid_finds_the_same_body_pairs():
         every = all_pairs(model, state.x, reach)
         assert len(every) > 0
         np.testing.assert_array_equal(grid, every)
+
+
+def test_a_spread_out_grid_is_coarsened_to_its_cell_budget():
+    """Half the crowd moved 100 m away: cells as wide as the interaction distance would number
+    far more than GRID_CELLS_PER_BODY a body; the grid keeps to that budget and still finds
+    the pairwise pairs (those of the half left in place)."""
+    model, state = _state(crowd())
+    reach = _reach(model, state, 0.005)
+    x = state.x.copy()
+    x[::2, 0] += 100.0
+    nb = len(x)
+    cells, dims = np.zeros((nb, 3), dtype=np.int64), np.ones(3, dtype=np.int64)
+    n_cells = _bin(model, x, reach, cells, dims, np.empty(nb, dtype=np.int64), 10**9)
+    budget = GRID_CELLS_PER_BODY * nb
+    assert n_cells > budget
+    assert 0 < _bin(model, x, reach, cells, dims, np.empty(nb, dtype=np.int64), budget) <= budget
+    every = all_pairs(model, x, reach)
+    assert len(every) > 0
+    np.testing.assert_array_equal(grid_pairs(model, x, reach), every)
 
 
 def test_grid_matches_pairwise_on_far_flung_and_nan_bodies():
