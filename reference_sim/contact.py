@@ -192,7 +192,8 @@ SOLVER_STATISTICS = 5
 # number of bodies); fewer are tested pair by pair, which is faster for a handful.
 GRID_MIN_BODIES = 16
 # The grid has at most this many cells a body (its cell table is 8 bytes a cell): scenes spread
-# wider get coarser cells, which only add candidate tests. `cube_rain_1000` fills 1,296 cells.
+# wider get coarser cells, which only add candidate tests. `cube_rain_1000`'s grid has 1,296
+# cells at t = 0, within its budget of 8,000.
 GRID_CELLS_PER_BODY = 8
 # A contact that does not push and whose normal speed exceeds its target by more than this many
 # times the last sweep's largest speed change is idle: sweeps skip it until the busy contacts
