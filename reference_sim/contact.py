@@ -532,9 +532,9 @@ def _assemble(model, x, nc, gate, buf, kept):
 
     A row k < `kept` that already holds them for the same contact (`buf.made[k] ==
     buf.keys[k]`) keeps them: the caller vouches that rows below `kept` were assembled at the
-    bodies' current pose, so they are what this would compute, bit for bit. (A row past them
-    may hold the same contact assembled at an older pose.) Records in `buf.made` which rows
-    it assembled."""
+    bodies' current pose to within rounding (`rigid.POSE_ROUNDING`), so they are what this
+    would compute to within rounding. (A row past them may hold the same contact assembled at
+    an older pose.) Records in `buf.made` which rows it assembled."""
     cands, inv, jac, kn, kt, kt_inv = buf.cands, buf.inv, buf.jac, buf.kn, buf.kt, buf.kt_inv
     k_inv = buf.k_inv
     for k in range(nc):
@@ -1034,9 +1034,9 @@ class ContactBuffers(NamedTuple):
     gap, target, bounce (C,), active, acting (C,), lam (C, 3), hist (C, 2, 3) (its impulses of
     the two steps before, NaN: none), made (C,) (the key of the contact whose gap, rows and
     inverse masses row k holds, -1: none; rows below counts[3] hold them for the current pose:
-    `after_drift` sets it, a drift clears it unless it moved no body), slack (C,) (its normal
-    speed above its target when it does not push, -inf when it does), busy (2C,) (`_iterate`'s
-    contacts: busy ones from the start, idle ones from the end);
+    `after_drift` sets it, a drift clears it unless it moved no body by rigid.POSE_ROUNDING),
+    slack (C,) (its normal speed above its target when it does not push, -inf when it does),
+    busy (2C,) (`_iterate`'s contacts: busy ones from the start, idle ones from the end);
     bodies (B, 6), v and omega at a sweep's start; lam_sweep (C, 3), the impulses at the start
     of a sweep that `_extrapolate` follows. The warm start: keys and impulses of the last
     three steps (C, 3, 3) (age, direction) before and after the drift, of counts[0] and
@@ -1047,7 +1047,8 @@ class ContactBuffers(NamedTuple):
     The subspace step (`_subspace_step`): rows (3C, 2) (contact, direction), row_jac (3C, 12)
     and row_lam (3C,) per row, slot (B,) each body's place in it (-1: not in it), normal
     (6S, 6S) and rhs (6S,), S = min(B, SUBSPACE_MAX_BODIES). cycle (2, CYCLE_MAX_PERIOD): the
-    cycle test's record (`_cycles`). pose (B, 7): each body's x and q before the drift.
+    cycle test's record (`_cycles`). pose (B, 7): each body's x and q where the kept rows were
+    assembled (`rigid.rigid_step`).
     """
 
     rot: np.ndarray
@@ -1315,8 +1316,8 @@ def after_drift(model, x, q, v, L, nc, dt, buf):
     """Impulses after the drift on the contacts that pushed before it or bounce
     (`buf.acting`) or touch now (gap below TOUCH_TOLERANCE): the bounce targets of
     `before_drift`, else inelastic (normal speed >= 0, and friction). Changes v and L. Keeps
-    the rows below `buf.counts[3]`: the caller vouches that the drift moved no body since
-    `before_drift` assembled them."""
+    the rows below `buf.counts[3]`: the caller vouches that no body has moved by more than
+    rounding (`rigid.POSE_ROUNDING`) since they were assembled."""
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
     _assemble(model, x, nc, TOUCH_TOLERANCE, buf, buf.counts[3])
     buf.counts[3] = nc  # rows for the current pose, until the next drift

@@ -44,6 +44,13 @@ EULER, SPLITTING, RK4, EXACT = 0, 1, 2, 3
 # Impacts slower than this many steps' worth of gravity are resting contacts, not bounces:
 # a body lying still gains |g| dt of approach speed every step and must not bounce on it.
 BOUNCE_STEPS = 2.0
+# Contact rows (Jacobians, inverse masses, gaps) are kept from one assembly to the next while no
+# body has moved by this much (m) since they were assembled (`_moved_from`). A step then uses
+# rows assembled at most 2 POSE_ROUNDING from the current pose: gaps and lever arms off by at
+# most that, a fifth of the gaps' own rounding (`contact.GAP_ROUNDING`). A body at rest moves by
+# rounding: `dropped_cube` (`euler`) by 1.7e-20 m a step, which, bit for bit, left 176 of its 500
+# steps without any motion and 1 in a run whose solver rounded differently.
+POSE_ROUNDING = 1e-15
 
 
 @kernel
@@ -146,15 +153,17 @@ def _pose_into(x, q, pose):
 
 
 @kernel
-def _moved_from(x, q, pose):
-    """Whether some body's x or q differs from `pose` (`_pose_into`), bit for bit."""
+def _moved_from(model, x, q, pose):
+    """Whether some body has moved by POSE_ROUNDING or more since `pose` (`_pose_into`): its
+    COM's displacement plus its bound radius times the rotation angle, 2 |dq| to first order."""
     for b in range(x.shape[0]):
+        dx, dq = 0.0, 0.0
         for i in range(3):
-            if x[b, i] != pose[b, i]:
-                return True
+            dx += (x[b, i] - pose[b, i]) ** 2
         for i in range(4):
-            if q[b, i] != pose[b, 3 + i]:
-                return True
+            dq += (q[b, i] - pose[b, 3 + i]) ** 2
+        if not math.sqrt(dx) + 2.0 * model.bound_radius[b] * math.sqrt(dq) < POSE_ROUNDING:
+            return True
     return False
 
 
@@ -194,15 +203,20 @@ def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, buf):
                 0.5 * dt * model.gravity[1],
                 0.5 * dt * model.gravity[2],
             )
+        # `buf.pose`: the pose the kept rows were assembled at, within POSE_ROUNDING; with no
+        # row kept from the last step, the first assembly makes them all here
+        if buf.counts[3] == 0:
+            _pose_into(x, q, buf.pose)
         before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf)
-        _pose_into(x, q, buf.pose)
     _drift(model, integrator, x, q, v, L, dt)
-    # `before_drift` assembled every candidate's rows; they hold for the pose after the drift
-    # only if it moved no body, bit for bit (a body at rest: `dropped_cube`, `euler`, is
-    # still in 176 of its 500 steps, `seed_cube` in 22 % (`euler`) and 38 % (`splitting`))
-    buf.counts[3] = nc if nc > 0 and not _moved_from(x, q, buf.pose) else 0
+    # `before_drift` assembled every candidate's rows; they serve after the drift while no body
+    # has moved by POSE_ROUNDING since `buf.pose` (a body at rest)
+    kept = nc > 0 and not _moved_from(model, x, q, buf.pose)
+    buf.counts[3] = nc if kept else 0
     if nc > 0:
         after_drift(model, x, q, v, L, nc, dt, buf)
+        if not kept:  # every row assembled afresh at this pose
+            _pose_into(x, q, buf.pose)
     return 0
 
 
