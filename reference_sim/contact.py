@@ -115,18 +115,27 @@ CYCLE_AGREEMENT = 1e-3
 # Extrapolation (`_extrapolate`): when the bodies' velocity change over a sweep has shrunk by
 # the same ratio rho (to within RATE_AGREEMENT of it) over the last RATE_SWEEPS sweeps, one slow
 # mode is left, and the sweeps would go on changing the impulses by rho times their last change,
-# sweep after sweep: the next sweep's change times rho / (1 - rho), the sum of them all, is
-# added at once. Only below RATE_MAX (not tuned): towards rho = 1 the jump, and the error an
-# inexact rho makes in it, grow without bound; at RATE_MAX the jump is 49 sweeps' worth.
+# sweep after sweep: that sweep's change times rho / (1 - rho), the sum of them all, is added at
+# once. Only below RATE_MAX (not tuned): towards rho = 1 the jump, and the error an inexact rho
+# makes in it, grow without bound; at RATE_MAX the jump is 49 sweeps' worth.
 # A pile converges that way: one of `cube_rain_8`'s solves shrank by 0.894 a sweep from its
 # 20th sweep to its 205th. The same 100 states of `cube_rain_8` (a run on the sweeps alone),
-# each stepped once, take 5,280 sweeps instead of 8,039 (`euler`) and 6,819 instead of 11,026
-# (`splitting`), with the same solves stopped unconverged; `euler` 90 us a step instead of 115.
-# Whole runs of the other contact cases: `seed_cube` 2,295 sweeps instead of 2,929,
-# `dropped_cube` 1,464 instead of 1,596, `cube_stack` 3,327 instead of 3,414, `incline` 6,401
-# instead of 6,373 (`euler`). From the same states, RATE_SWEEPS 4 with RATE_AGREEMENT 0.01
-# took 5,456 and 7,062 sweeps; 2 with 0.03, 5,356 and 6,782; 3 with 0.1, 5,651 and 6,889.
-RATE_SWEEPS = 3
+# each stepped once, took 5,280 sweeps instead of 8,039 (`euler`) and 6,819 instead of 11,026
+# (`splitting`) with RATE_SWEEPS 3; 4 with RATE_AGREEMENT 0.01, 5,456 and 7,062; 2 with 0.03,
+# 5,356 and 6,782; 3 with 0.1, 5,651 and 6,889 (extrapolating a sweep after the rate showed).
+# The extrapolation follows the very sweep that shows the rate (the impulses it started from
+# are kept when the sweep before left it one agreement short), and a rate whose extrapolation
+# ended its solve at the next sweep is trusted by the next solve on the same side of the drift
+# (`ContactBuffers.rates`): a sweep whose ratio agrees with it extrapolates at once. A body
+# rocking on an edge converges in one mode, at the same rate step after step (`dropped_cube`,
+# 0.45 from its second sweep): its pre-drift solves took 7 sweeps, now 4. Whole runs, sweeps
+# (`euler` / `splitting`): `dropped_cube` 2,400 / 3,606 extrapolating a sweep later with
+# RATE_SWEEPS 3; 2,190 / 3,186 at once; 1,956 / 2,773 with RATE_SWEEPS 2; 1,755 / 2,362 with
+# the trusted rate; `seed_cube` 2,295 / 2,530 -> 2,069 / 2,192, `cube_stack` 3,298 / 2,258 ->
+# 3,353 / 2,251, `incline` 6,395 / 9,513 -> 6,394 / 9,593, `cube_rain_8` 4,522 / 5,356 ->
+# 4,263 / 5,072. Interleaved A/B (3 rounds, medians of 31 whole runs): `dropped_cube` 14 / 20 %
+# less time, `seed_cube` 5 / 13 %, the other contact cases within +-3 %.
+RATE_SWEEPS = 2
 RATE_AGREEMENT = 0.03
 RATE_MAX = 0.98
 # Subspace steps (projected Gauss-Seidel with subspace minimisation, after Silcowitz, Niebe and
@@ -940,7 +949,7 @@ def _extrapolate(model, buf, n, v, L, factor):
 
 
 @inlined_kernel
-def _iterate(model, nc, buf, v, L, tolerance, idle_margin, first=SUBSPACE_FIRST):
+def _iterate(model, nc, buf, v, L, tolerance, idle_margin, first=SUBSPACE_FIRST, slot=0):
     """Gauss-Seidel sweeps until no impulse changes a speed by `tolerance` (m/s), or no body's
     velocity changes by that much over a sweep; returns the sweeps used and whether the solve
     converged (else it reached MAX_ITERATIONS, stalled (STALL_SWEEPS) or cycled (`_cycles`)).
@@ -961,8 +970,10 @@ def _iterate(model, nc, buf, v, L, tolerance, idle_margin, first=SUBSPACE_FIRST)
     A body's velocity change is |dv| + bound radius |d omega|, its fastest surface point's.
     A subspace step (`_subspace_step`) follows each of the sweeps `first` to
     `first` + SUBSPACE_STEPS - 1 if it has not converged and a contact stuck in it.
-    After RATE_SWEEPS sweeps whose velocity changes shrank by a steady ratio, the next sweep's
-    impulse changes are extrapolated (`_extrapolate`)."""
+    After RATE_SWEEPS sweeps whose velocity changes shrank by a steady ratio, or one whose
+    ratio agrees with the rate trusted for this `slot` (`buf.rates`: 0 before the drift, 1
+    after), the impulse changes of the last sweep are extrapolated (`_extrapolate`); if the
+    next sweep converges, the next solve of this slot trusts the rate."""
     omega, bodies, order = buf.omega, buf.bodies, buf.busy
     end = order.shape[0] - 1
     n_busy, n_idle = 0, 0
@@ -971,14 +982,15 @@ def _iterate(model, nc, buf, v, L, tolerance, idle_margin, first=SUBSPACE_FIRST)
             order[n_busy] = k
             n_busy += 1
     progress, since = math.inf, 0  # the velocity change at its last fall (STALL_PROGRESS)
-    last, rate, steady, extrapolate = math.inf, 0.0, 0, False
+    last, rate, steady, armed = math.inf, 0.0, 0, False
+    trusted, tried = buf.rates[slot], 0.0
     for it in range(MAX_ITERATIONS):
         change = 0.0
         sticking = model.friction == 0.0  # a subspace step needs a sticking contact
         for b in range(v.shape[0]):
             for i in range(3):
                 bodies[b, i], bodies[b, 3 + i] = v[b, i], omega[b, i]
-        if extrapolate:  # the impulses this sweep starts from
+        if armed:  # the impulses this sweep starts from
             for m in range(n_busy):
                 k = order[m]
                 for d in range(3):
@@ -998,22 +1010,28 @@ def _iterate(model, nc, buf, v, L, tolerance, idle_margin, first=SUBSPACE_FIRST)
                 break
             rejoin, stop = True, n_busy + n_idle
         if converged:
+            if tried > 0.0:  # the extrapolation ended the solve: the next may trust its rate
+                buf.rates[slot] = tried
             return it + 1, True
+        if tried > 0.0:  # it did not: no rate is trusted
+            trusted, tried = 0.0, 0.0
+            buf.rates[slot] = 0.0
         if moved < STALL_PROGRESS * progress:
             progress, since = moved, it
         elif it - since >= STALL_SWEEPS:
             return it + 1, False
         if it >= CYCLE_START and _cycles(buf.cycle, it - CYCLE_START, moved):
             return it + 1, False
-        if extrapolate:
+        ratio = moved / last
+        steady = steady + 1 if abs(ratio - rate) < RATE_AGREEMENT * ratio else 0
+        rate, last = ratio, moved
+        known = abs(ratio - trusted) < RATE_AGREEMENT * ratio
+        if armed and (steady >= RATE_SWEEPS - 1 or known) and rate < RATE_MAX:
             _extrapolate(model, buf, n_busy, v, L, rate / (1.0 - rate))
             buf.solver[4] += 1
-            last, rate, steady, extrapolate = math.inf, 0.0, 0, False
-        else:
-            ratio = moved / last
-            steady = steady + 1 if abs(ratio - rate) < RATE_AGREEMENT * ratio else 0
-            rate, last = ratio, moved
-            extrapolate = steady >= RATE_SWEEPS - 1 and rate < RATE_MAX
+            tried = rate
+            last, rate, steady = math.inf, 0.0, 0
+        armed = (steady >= RATE_SWEEPS - 2 or trusted > 0.0) and 0.0 < rate < RATE_MAX
         n_busy, n_idle = _regroup(buf, n_busy, n_idle, idle_margin * change, rejoin)
         if sticking and first <= it + 1 < first + SUBSPACE_STEPS:
             buf.solver[3] += _subspace_step(model, nc, buf, v, L)
@@ -1055,7 +1073,8 @@ class ContactBuffers(NamedTuple):
     and row_lam (3C,) per row, slot (B,) each body's place in it (-1: not in it), normal
     (6S, 6S) and rhs (6S,), S = min(B, SUBSPACE_MAX_BODIES). cycle (2, CYCLE_MAX_PERIOD): the
     cycle test's record (`_cycles`). pose (B, 7): each body's x and q where the kept rows were
-    assembled (`rigid.rigid_step`).
+    assembled (`rigid.rigid_step`). rates (2,): the rate of the last extrapolation that ended
+    its solve, before and after the drift (0: none; `_iterate`).
     """
 
     rot: np.ndarray
@@ -1096,6 +1115,7 @@ class ContactBuffers(NamedTuple):
     rhs: np.ndarray
     cycle: np.ndarray
     pose: np.ndarray
+    rates: np.ndarray
 
 
 @compiled
@@ -1143,6 +1163,7 @@ def contact_buffers(n_bodies, capacity, pair_capacity):
         np.zeros(6 * s),
         np.zeros((2, CYCLE_MAX_PERIOD)),
         np.zeros((n_bodies, 7)),
+        np.zeros(2),
     )
 
 
@@ -1162,6 +1183,8 @@ def _carry_over(old, new):
         new.counts[k] = old.counts[k]
     for k in range(SOLVER_STATISTICS):
         new.solver[k] = old.solver[k]
+    for k in range(2):
+        new.rates[k] = old.rates[k]
 
 
 @compiled
@@ -1264,20 +1287,21 @@ def _remember(nc, buf, keep, keys, lam):
 
 
 @inlined_kernel
-def _solve(model, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm):
+def _solve(model, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm, slot):
     """Projected Gauss-Seidel on the normal and friction impulses of the active contacts
     (`_assemble`), in place, towards `buf.target` normal speeds, to `solver_tolerance(dt)`.
     Impulses start from those of the same contacts in the previous steps (`warm_keys`,
     `warm_lam`, `_trend`): a body resting on a plane converges in one sweep. The first subspace
     step may follow the first sweep if some contact matched (SUBSPACE_FIRST_WARM), else the
-    second; none in a scene of fewer than SUBSPACE_MIN_BODIES bodies. Counts the solve in
+    second; none in a scene of fewer than SUBSPACE_MIN_BODIES bodies. `slot`: 0 before the
+    drift, 1 after (its trusted extrapolation rate, `_iterate`). Counts the solve in
     `buf.solver`."""
     tolerance = solver_tolerance(dt)
     warm = _warm_start(model, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance)
     first = SUBSPACE_FIRST_WARM if warm > 0 else SUBSPACE_FIRST
     if v.shape[0] < SUBSPACE_MIN_BODIES:
         first = MAX_ITERATIONS + 1  # after no sweep
-    sweeps, converged = _iterate(model, nc, buf, v, L, tolerance, IDLE_MARGIN, first)
+    sweeps, converged = _iterate(model, nc, buf, v, L, tolerance, IDLE_MARGIN, first, slot)
     buf.solver[0] += 1
     buf.solver[1] += sweeps
     buf.solver[2] += not converged
@@ -1307,7 +1331,7 @@ def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
     for k in range(nc):
         gap = buf.gap[k]
         buf.target[k] = -gap / dt if gap >= 0.0 else -BAUMGARTE * gap / dt
-    _solve(model, v, L, nc, dt, buf, buf.pre_keys, buf.pre_lam, buf.counts[0])
+    _solve(model, v, L, nc, dt, buf, buf.pre_keys, buf.pre_lam, buf.counts[0], 0)
     for k in range(nc):
         buf.acting[k] = buf.lam[k, 0] > 0.0
     buf.counts[0] = _remember(nc, buf, buf.acting, buf.pre_keys, buf.pre_lam)
@@ -1330,5 +1354,5 @@ def after_drift(model, x, q, v, L, nc, dt, buf):
     buf.counts[3] = nc  # rows for the current pose, until the next drift
     for k in range(nc):
         buf.target[k] = buf.bounce[k]
-    _solve(model, v, L, nc, dt, buf, buf.post_keys, buf.post_lam, buf.counts[1])
+    _solve(model, v, L, nc, dt, buf, buf.post_keys, buf.post_lam, buf.counts[1], 1)
     buf.counts[1] = _remember(nc, buf, buf.active, buf.post_keys, buf.post_lam)

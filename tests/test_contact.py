@@ -392,3 +392,37 @@ def test_an_extrapolated_solve_ends_where_the_sweeps_alone_would(monkeypatch):
             for s in (step.after, step.state)
         )
         np.testing.assert_allclose(w, w_plain, rtol=0, atol=tolerance)
+
+
+def test_a_trusted_rate_extrapolates_sooner_to_the_same_motion():
+    """`dropped_cube` (`euler`) rocking on an edge: the first step that starts with a rate
+    trusted before the drift (`ContactBuffers.rates`) and extrapolates, run again from the same
+    state with no rate trusted: both converge, to the same velocities within
+    SAME_MOTION_TOLERANCES solver tolerances, the trusting one in fewer sweeps."""
+    scene = CATALOG["dropped_cube"]
+    model = model_from_scene(scene)
+    state = initial_state(model, scene)
+    buf = contact.contact_buffers(1, 64, 4)
+    threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * scene.dt
+    for _ in range(scene.steps(scene.dt, scene.duration)):
+        before = [a.copy() for a in state], contact.ContactBuffers(*(a.copy() for a in buf))
+        assert rigid_step(model, INTEGRATORS["euler"], *state, scene.dt, threshold, buf) == 0
+        if before[1].rates[0] > 0.0 and buf.solver[4] > before[1].solver[4]:
+            break
+    else:
+        pytest.fail("no step extrapolated with a trusted rate")
+    assert buf.solver[2] == before[1].solver[2]  # converged
+    untrusted = contact.ContactBuffers(*(a.copy() for a in before[1]))
+    untrusted.rates[:] = 0.0
+    again = [a.copy() for a in before[0]]
+    assert rigid_step(model, INTEGRATORS["euler"], *again, scene.dt, threshold, untrusted) == 0
+    assert untrusted.solver[2] == before[1].solver[2]
+    sweeps = buf.solver[1] - before[1].solver[1]
+    assert sweeps < untrusted.solver[1] - before[1].solver[1]
+    tolerance = SAME_MOTION_TOLERANCES * contact.solver_tolerance(scene.dt)
+    np.testing.assert_allclose(state[2], again[2], rtol=0, atol=tolerance)
+    w, w_again = (
+        model.bound_radius[0] * np.array(contact.world_omega(model, s[1][0], s[3][0], 0))
+        for s in (state, again)
+    )
+    np.testing.assert_allclose(w, w_again, rtol=0, atol=tolerance)
