@@ -591,7 +591,10 @@ def _assemble(model, x, nc, gate, buf, kept):
                 entry = 0.0
                 for i in range(3):
                     entry += inv_mass * rd[0, i] * re[0, i] + rd[1, i] * re[2, i]
-                    entry += rd[3, i] * re[4, i]
+                    # a plane's rows 3 and 4 are zeros: adding their products changed nothing
+                    # and cost `dropped_cube`, `incline` and `slide` 3.5 to 4 % of a run
+                    if b >= 0:
+                        entry += rd[3, i] * re[4, i]
                 k_inv[k, 3 * d + e] = entry  # K itself, inverted below
                 k_inv[k, 3 * e + d] = entry
                 if d == 0 and e == 0:
