@@ -36,6 +36,7 @@ from reference_sim.contact import (
 )
 from reference_sim.exact_rotation import exact_rotation
 from reference_sim.jit import compiled, inlined_kernel, kernel
+from reference_sim.model import Model
 from reference_sim.quaternion import qexp, qmatrix, qmul, qnormalize
 from reference_sim.vec3 import dot, mat, mat_t_vec, mat_vec, row, vec
 
@@ -317,6 +318,15 @@ def run_rigid(model, integrator, x, q, v, L, dt, n_steps, stride):
         elif needed > 0:
             buf = grown(buf, 2 * needed, buf.pairs.shape[0])
     return steps, out, buf.solver.copy()
+
+
+@compiled
+def run_rigid_fields(fields, integrator, x, q, v, L, dt, n_steps, stride):
+    """`run_rigid` with the model passed as a plain tuple of its fields, `tuple(model)`: numba
+    types a NamedTuple argument in Python on every call, a plain tuple in C (a call passing the
+    model measured 3.5 against 1.4 us, and 18 against 10 us with the caches cold, as after
+    another engine's run)."""
+    return run_rigid(Model(*fields), integrator, x, q, v, L, dt, n_steps, stride)
 
 
 @kernel

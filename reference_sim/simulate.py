@@ -23,7 +23,7 @@ from reference_sim.model import (
     seed_initial_state,
 )
 from reference_sim.rigid import INTEGRATORS as RIGID_INTEGRATORS
-from reference_sim.rigid import run_rigid
+from reference_sim.rigid import run_rigid_fields
 from reference_sim.seed import run_seed
 
 INTEGRATORS = ("seed", *RIGID_INTEGRATORS)
@@ -59,8 +59,8 @@ def _call(model, integrator, state, dt, n_steps, stride):
     """(steps, samples, shape_error, solver) of a run, None where the integrator has none."""
     if integrator == "seed":
         return (*run_seed(model, *state, dt, n_steps, stride), None)
-    steps, samples, solver = run_rigid(
-        model, RIGID_INTEGRATORS[integrator], *state, dt, n_steps, stride
+    steps, samples, solver = run_rigid_fields(
+        tuple(model), RIGID_INTEGRATORS[integrator], *state, dt, n_steps, stride
     )
     return steps, samples, None, solver
 
