@@ -128,13 +128,14 @@ CYCLE_AGREEMENT = 1e-3
 # ended its solve at the next sweep is trusted by the next solve on the same side of the drift
 # (`ContactBuffers.rates`): a sweep whose ratio agrees with it extrapolates at once. A body
 # rocking on an edge converges in one mode, at the same rate step after step (`dropped_cube`,
-# 0.45 from its second sweep): its pre-drift solves took 7 sweeps, now 4. Whole runs, sweeps
-# (`euler` / `splitting`): `dropped_cube` 2,400 / 3,606 extrapolating a sweep later with
+# 0.45 a sweep from its third sweep on): its pre-drift solves took 7 sweeps, now 4. Whole runs,
+# sweeps (`euler` / `splitting`): `dropped_cube` 2,400 / 3,606 extrapolating a sweep later with
 # RATE_SWEEPS 3; 2,190 / 3,186 at once; 1,956 / 2,773 with RATE_SWEEPS 2; 1,755 / 2,362 with
 # the trusted rate; `seed_cube` 2,295 / 2,530 -> 2,069 / 2,192, `cube_stack` 3,298 / 2,258 ->
 # 3,353 / 2,251, `incline` 6,395 / 9,513 -> 6,394 / 9,593, `cube_rain_8` 4,522 / 5,356 ->
-# 4,263 / 5,072. Interleaved A/B (3 rounds, medians of 31 whole runs): `dropped_cube` 14 / 20 %
-# less time, `seed_cube` 5 / 13 %, the other contact cases within +-3 %.
+# 4,263 / 5,072. Interleaved A/B (3 rounds, medians of 31 whole runs, with the shorter update
+# chain of `_update`, 1 / 4 % of it): `dropped_cube` 14 / 20 % less time, `seed_cube` 5 / 13 %,
+# the other contact cases within +-3 %.
 RATE_SWEEPS = 2
 RATE_AGREEMENT = 0.03
 RATE_MAX = 0.98
