@@ -20,10 +20,14 @@ of a kick-drift-kick scheme:
 2. Before the drift (`before_drift`): speculative contacts on the velocity the drift will use
    (v plus the part of this step's gravity the integrator adds during the drift). A contact
    with gap g may approach by at most g / dt, so the drift ends touching, never penetrating
-   (to first order in the rotation). A contact that would close within the step at more than
-   the bounce threshold bounces: its normal speed becomes -e times the approach speed. Coulomb
-   friction acts with every normal impulse. A gap already negative (the rotation's second-order
-   overshoot) is closed at BAUMGARTE of its depth per step.
+   (to first order in the rotation). A candidate whose gap is beyond what its bodies can
+   move in the step at these velocities (their `reach`) stands by, unassembled and unsolved,
+   unless the solve speeds the bodies up enough to close it (`_wake`): at a rocking cube's
+   lifted corners, a falling ball's floor, a pile's neighbours. A contact that would close
+   within the step at more than the bounce threshold bounces: its normal speed becomes -e
+   times the approach speed. Coulomb friction acts with every normal impulse. A gap already
+   negative (the rotation's second-order overshoot) is closed at BAUMGARTE of its depth per
+   step.
 3. After the drift (`after_drift`): touching contacts get the inelastic rest of the step's
    impulse (normal speed >= 0 and friction), which removes the gravity the drift's second half
    added: a resting body ends the step with zero velocity, exactly still, without creep.
@@ -540,7 +544,7 @@ def _invert3(m):
 
 
 @inlined_kernel
-def _assemble(model, x, nc, gate, buf, kept):
+def _assemble(model, x, nc, gate, buf, kept, standby=False):
     """Per candidate k < nc of `buf`: its gap, whether it acts (`buf.acting[k]`, or its gap is
     at most `gate`), its Jacobian rows and its normal and tangent inverse masses.
 
@@ -548,65 +552,93 @@ def _assemble(model, x, nc, gate, buf, kept):
     buf.keys[k]`) keeps them: the caller vouches that rows below `kept` were assembled at the
     bodies' current pose to within rounding (`rigid.POSE_ROUNDING`), so they are what this
     would compute to within rounding. (A row past them may hold the same contact assembled at
-    an older pose.) Records in `buf.made` which rows it assembled."""
-    cands, inv, jac, kn, kt, kt_inv = buf.cands, buf.inv, buf.jac, buf.kn, buf.kt, buf.kt_inv
-    k_inv = buf.k_inv
+    an older pose.) Records in `buf.made` which rows it assembled. With `standby`, an active
+    contact whose gap its bodies' reach cannot close (`_closes`) is left on standby
+    (`buf.standby[k]`): gap only, no rows, until `_wake` finds it needed."""
+    buf.counts[4] = 0
     for k in range(nc):
+        buf.standby[k] = False
         if k < kept and buf.made[k] == buf.keys[k]:
             buf.active[k] = buf.acting[k] or buf.gap[k] <= gate
             continue
-        a, b = cands[k, 0], cands[k, 2]
-        n, buf.gap[k], ra, rb = contact_geometry(model, x, buf.rot, cands, k)
+        n, buf.gap[k], ra, rb = contact_geometry(model, x, buf.rot, buf.cands, k)
         buf.active[k] = buf.acting[k] or buf.gap[k] <= gate
-        buf.made[k] = buf.keys[k] if buf.active[k] else -1
-        if not buf.active[k]:
-            continue
-        # a plane contact's tangents are its plane's, fixed (`Model.plane_tangents`): no square
-        # root and division ahead of the rows (`dropped_cube`'s 4 contacts assembled in 145
-        # instead of 169 ns; bit-equal)
-        if b < 0:
-            pt, j = model.plane_tangents, cands[k, 3]
-            t1, t2 = (
-                (pt[j, 0, 0], pt[j, 0, 1], pt[j, 0, 2]),
-                (pt[j, 1, 0], pt[j, 1, 1], pt[j, 1, 2]),
-            )
-        else:
-            t1, t2 = tangents(n)
-        for d in range(3):
-            direction = n if d == 0 else (t1 if d == 1 else t2)
-            rows = jac[k, d]
-            arm_a = cross(ra, direction)
-            arm_b = cross(rb, direction)
-            turn_a = mat_vec(flat(inv, a), arm_a)
-            turn_b = mat_vec(flat(inv, b), arm_b) if b >= 0 else (0.0, 0.0, 0.0)
+        buf.standby[k] = standby and buf.active[k] and not _closes(model, buf, buf.reach, k)
+        buf.made[k] = buf.keys[k] if buf.active[k] and not buf.standby[k] else -1
+        buf.counts[4] += buf.standby[k]
+        if buf.made[k] >= 0:
+            _assemble_rows(model, buf, k, n, ra, rb)
+
+
+# Standby (`_assemble`, `_wake`): the candidates a particle radius beyond reach are there in
+# case the solve speeds their bodies up; most never push. Measured against solving them all:
+# `dropped_cube` (`euler`) 752 -> 707 ns a step while it rocks on an edge (its two lifted
+# corners on standby), whole runs (medians of interleaved runs) `bounce` -7 %, `cube_rain_8`
+# -6 %, `dropped_cube` -2 %, `incline`, `seed_cube`, `resting_cube` within +-2 % (none on
+# standby: the flag tests alone). 21 of the catalog's 24 contact runs (`euler`, `splitting`)
+# are bit-equal; in `dropped_cube` (`splitting`) and `cube_rain_8` a woken contact joins the
+# sweeps later, and the runs differ by rounding (5.6e-17, and 2.2e-11 in the pile).
+@kernel
+def _closes(model, buf, reach, k):
+    """Whether contact k's bodies, each moving at most its `reach` (m) in the step, could
+    close its gap (to within IMPACT_SLACK, the impact test's)."""
+    a, b = buf.cands[k, 0], buf.cands[k, 2]
+    return not buf.gap[k] > reach[a] + (reach[b] if b >= 0 else 0.0) + IMPACT_SLACK
+
+
+@inlined_kernel
+def _assemble_rows(model, buf, k, n, ra, rb):
+    """Contact k's Jacobian rows and inverse masses, from its normal n and lever arms ra, rb
+    (`contact_geometry`)."""
+    cands, inv, jac, kn, kt, kt_inv = buf.cands, buf.inv, buf.jac, buf.kn, buf.kt, buf.kt_inv
+    k_inv = buf.k_inv
+    a, b = cands[k, 0], cands[k, 2]
+    # a plane contact's tangents are its plane's, fixed (`Model.plane_tangents`): no square
+    # root and division ahead of the rows (`dropped_cube`'s 4 contacts assembled in 145
+    # instead of 169 ns; bit-equal)
+    if b < 0:
+        pt, j = model.plane_tangents, cands[k, 3]
+        t1, t2 = (
+            (pt[j, 0, 0], pt[j, 0, 1], pt[j, 0, 2]),
+            (pt[j, 1, 0], pt[j, 1, 1], pt[j, 1, 2]),
+        )
+    else:
+        t1, t2 = tangents(n)
+    for d in range(3):
+        direction = n if d == 0 else (t1 if d == 1 else t2)
+        rows = jac[k, d]
+        arm_a = cross(ra, direction)
+        arm_b = cross(rb, direction)
+        turn_a = mat_vec(flat(inv, a), arm_a)
+        turn_b = mat_vec(flat(inv, b), arm_b) if b >= 0 else (0.0, 0.0, 0.0)
+        for i in range(3):
+            rows[0, i] = direction[i]
+            rows[1, i] = arm_a[i]
+            rows[2, i] = turn_a[i]
+            rows[3, i] = arm_b[i] if b >= 0 else 0.0
+            rows[4, i] = turn_b[i]
+    inv_mass = 1.0 / model.body_mass[a] + (1.0 / model.body_mass[b] if b >= 0 else 0.0)
+    for d in range(3):
+        for e in range(d, 3):
+            rd, re = jac[k, d], jac[k, e]
+            entry = 0.0
             for i in range(3):
-                rows[0, i] = direction[i]
-                rows[1, i] = arm_a[i]
-                rows[2, i] = turn_a[i]
-                rows[3, i] = arm_b[i] if b >= 0 else 0.0
-                rows[4, i] = turn_b[i]
-        inv_mass = 1.0 / model.body_mass[a] + (1.0 / model.body_mass[b] if b >= 0 else 0.0)
-        for d in range(3):
-            for e in range(d, 3):
-                rd, re = jac[k, d], jac[k, e]
-                entry = 0.0
-                for i in range(3):
-                    entry += inv_mass * rd[0, i] * re[0, i] + rd[1, i] * re[2, i]
-                    # a plane's rows 3 and 4 are zeros: adding their products changed nothing
-                    # and cost `dropped_cube`, `incline` and `slide` 3.5 to 4 % of a run
-                    if b >= 0:
-                        entry += rd[3, i] * re[4, i]
-                k_inv[k, 3 * d + e] = entry  # K itself, inverted below
-                k_inv[k, 3 * e + d] = entry
-                if d == 0 and e == 0:
-                    kn[k] = entry
-                elif d > 0:
-                    kt[k, 2 * (d - 1) + (e - 1)] = entry
-                    kt[k, 2 * (e - 1) + (d - 1)] = entry
-        det = kt[k, 0] * kt[k, 3] - kt[k, 1] * kt[k, 2]
-        kt_inv[k, 0], kt_inv[k, 1] = kt[k, 3] / det, -kt[k, 1] / det
-        kt_inv[k, 2], kt_inv[k, 3] = -kt[k, 2] / det, kt[k, 0] / det
-        _invert3(k_inv[k])
+                entry += inv_mass * rd[0, i] * re[0, i] + rd[1, i] * re[2, i]
+                # a plane's rows 3 and 4 are zeros: adding their products changed nothing
+                # and cost `dropped_cube`, `incline` and `slide` 3.5 to 4 % of a run
+                if b >= 0:
+                    entry += rd[3, i] * re[4, i]
+            k_inv[k, 3 * d + e] = entry  # K itself, inverted below
+            k_inv[k, 3 * e + d] = entry
+            if d == 0 and e == 0:
+                kn[k] = entry
+            elif d > 0:
+                kt[k, 2 * (d - 1) + (e - 1)] = entry
+                kt[k, 2 * (e - 1) + (d - 1)] = entry
+    det = kt[k, 0] * kt[k, 3] - kt[k, 1] * kt[k, 2]
+    kt_inv[k, 0], kt_inv[k, 1] = kt[k, 3] / det, -kt[k, 1] / det
+    kt_inv[k, 2], kt_inv[k, 3] = -kt[k, 2] / det, kt[k, 0] / det
+    _invert3(k_inv[k])
 
 
 @kernel
@@ -953,7 +985,34 @@ def _extrapolate(model, buf, n, v, L, factor):
 
 
 @inlined_kernel
-def _iterate(model, nc, buf, v, L, tolerance, idle_margin, first=SUBSPACE_FIRST, slot=0):
+def _wake_one(model, x, buf, k):
+    """Take contact k off standby: its rows assembled, busy until its first update."""
+    n, buf.gap[k], ra, rb = contact_geometry(model, x, buf.rot, buf.cands, k)
+    _assemble_rows(model, buf, k, n, ra, rb)
+    buf.made[k], buf.standby[k], buf.slack[k] = buf.keys[k], False, -math.inf
+    buf.counts[4] -= 1
+
+
+@inlined_kernel
+def _wake(model, x, nc, dt, buf, v, n_busy):
+    """Wake the contacts on standby (`_assemble`) whose gap the bodies, at their velocities now
+    (as the solve has changed them), could close within the step (`_closes`): they join the
+    busy ones in `buf.busy`. Returns the new count of busy contacts. A contact left on standby
+    has a normal speed above its target -gap / dt: it would not push."""
+    if buf.counts[4] == 0:
+        return n_busy
+    reach_into(model, v, buf.omega, dt, (0.0, 0.0, 0.0), buf.reach)  # as the drift will use
+    for k in range(nc):
+        if buf.standby[k]:
+            if _closes(model, buf, buf.reach, k):
+                _wake_one(model, x, buf, k)
+                buf.busy[n_busy] = k
+                n_busy += 1
+    return n_busy
+
+
+@inlined_kernel
+def _iterate(model, x, nc, dt, buf, v, L, tolerance, idle_margin, first=SUBSPACE_FIRST, slot=0):
     """Gauss-Seidel sweeps until no impulse changes a speed by `tolerance` (m/s), or no body's
     velocity changes by that much over a sweep; returns the sweeps used and whether the solve
     converged (else it reached MAX_ITERATIONS, stalled (STALL_SWEEPS) or cycled (`_cycles`)).
@@ -977,12 +1036,14 @@ def _iterate(model, nc, buf, v, L, tolerance, idle_margin, first=SUBSPACE_FIRST,
     After RATE_SWEEPS sweeps whose velocity changes shrank by a steady ratio, or one whose
     ratio agrees with the rate trusted for this `slot` (`buf.rates`: 0 before the drift, 1
     after), the impulse changes of the last sweep are extrapolated (`_extrapolate`); if the
-    next sweep converges, the next solve of this slot trusts the rate."""
+    next sweep converges, the next solve of this slot trusts the rate.
+    Contacts on standby (`_assemble`) are not swept; once the sweeps converge, those the
+    velocities now reach are woken (`_wake`) and the sweeps go on with them."""
     omega, bodies, order = buf.omega, buf.bodies, buf.busy
     end = order.shape[0] - 1
     n_busy, n_idle = 0, 0
     for k in range(nc):
-        if buf.active[k]:
+        if buf.active[k] and not buf.standby[k]:
             order[n_busy] = k
             n_busy += 1
     progress, since = math.inf, 0  # the velocity change at its last fall (STALL_PROGRESS)
@@ -1014,9 +1075,14 @@ def _iterate(model, nc, buf, v, L, tolerance, idle_margin, first=SUBSPACE_FIRST,
                 break
             rejoin, stop = True, n_busy + n_idle
         if converged:
-            if tried > 0.0:  # the extrapolation ended the solve: the next may trust its rate
-                buf.rates[slot] = tried
-            return it + 1, True
+            awake = _wake(model, x, nc, dt, buf, v, n_busy)
+            if awake == n_busy:
+                if tried > 0.0:  # the extrapolation ended the solve: the next may trust its rate
+                    buf.rates[slot] = tried
+                return it + 1, True
+            n_busy = awake  # sweeps go on with the woken contacts
+            last, rate, steady, armed, tried = math.inf, 0.0, 0, False, 0.0
+            continue
         if tried > 0.0:  # it did not: no rate is trusted
             trusted, tried = 0.0, 0.0
             buf.rates[slot] = 0.0
@@ -1047,9 +1113,12 @@ def _bounces(model, v, nc, dt, bounce_threshold, buf):
     """-e times the approach speed of every contact that impacts within the step, else 0, into
     `buf.bounce` (needs `_assemble`'s gaps and Jacobians)."""
     for k in range(nc):
+        buf.bounce[k] = 0.0
+        if buf.standby[k]:  # its gap is beyond reach: no impact within the step
+            continue
         vn = _speed(buf.jac[k, 0], buf.cands[k, 0], buf.cands[k, 2], v, buf.omega)
-        hits = vn < -bounce_threshold and buf.gap[k] + dt * vn < IMPACT_SLACK
-        buf.bounce[k] = -model.restitution * vn if hits else 0.0
+        if vn < -bounce_threshold and buf.gap[k] + dt * vn < IMPACT_SLACK:
+            buf.bounce[k] = -model.restitution * vn
 
 
 class ContactBuffers(NamedTuple):
@@ -1070,7 +1139,8 @@ class ContactBuffers(NamedTuple):
     of a sweep that `_extrapolate` follows. The warm start: keys and impulses of the last
     three steps (C, 3, 3) (age, direction) before and after the drift, of counts[0] and
     counts[1] contacts, in key order. counts[2]: how many rows of `pairs` the caller filled for
-    this step, or -1 to have them found pair by pair.
+    this step, or -1 to have them found pair by pair. standby (C,): the candidates left on
+    standby before the drift (`_assemble`), counts[4] of them.
     solver (5,): solves, sweeps, solves stopped unconverged (at MAX_ITERATIONS, stalled:
     STALL_SWEEPS, or cycling: `_cycles`), subspace steps and extrapolations, summed over the run.
     The subspace step (`_subspace_step`): rows (3C, 2) (contact, direction), row_jac (3C, 12)
@@ -1120,13 +1190,14 @@ class ContactBuffers(NamedTuple):
     cycle: np.ndarray
     pose: np.ndarray
     rates: np.ndarray
+    standby: np.ndarray
 
 
 @compiled
 def contact_buffers(n_bodies, capacity, pair_capacity):
     """Empty buffers for `capacity` candidates and `pair_capacity` body pairs."""
     c, s = capacity, min(n_bodies, SUBSPACE_MAX_BODIES)
-    counts = np.zeros(4, dtype=np.int64)
+    counts = np.zeros(5, dtype=np.int64)
     counts[2] = -1
     return ContactBuffers(
         np.empty((n_bodies, 9)),
@@ -1168,6 +1239,7 @@ def contact_buffers(n_bodies, capacity, pair_capacity):
         np.zeros((2, CYCLE_MAX_PERIOD)),
         np.zeros((n_bodies, 7)),
         np.zeros(2),
+        np.zeros(c, dtype=np.bool_),
     )
 
 
@@ -1248,7 +1320,7 @@ def _trend(model, warm_lam, at, kn, tolerance):
 
 
 @inlined_kernel
-def _warm_start(model, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance):
+def _warm_start(model, x, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance):
     """Each contact that matches one of last step's starts from its impulses, continued along
     their trend (`_trend`), applied; the impulses of the steps before go into `buf.hist` for
     `_remember` (NaN: none). Both key lists are in increasing order: one merge pass matches
@@ -1266,6 +1338,8 @@ def _warm_start(model, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance):
                 for d in range(3):
                     buf.hist[k, age, d] = warm_lam[at, age, d]
             warm += 1
+            if buf.standby[k]:  # it pushed last step: it needs its rows
+                _wake_one(model, x, buf, k)
             p0, p1, p2 = _trend(model, warm_lam, at, buf.kn[k], tolerance)
             buf.lam[k, 0], buf.lam[k, 1], buf.lam[k, 2] = p0, p1, p2
             if p0 != 0.0 or p1 != 0.0 or p2 != 0.0:
@@ -1291,7 +1365,7 @@ def _remember(nc, buf, keep, keys, lam):
 
 
 @inlined_kernel
-def _solve(model, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm, slot):
+def _solve(model, x, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm, slot):
     """Projected Gauss-Seidel on the normal and friction impulses of the active contacts
     (`_assemble`), in place, towards `buf.target` normal speeds, to `solver_tolerance(dt)`.
     Impulses start from those of the same contacts in the previous steps (`warm_keys`,
@@ -1301,11 +1375,11 @@ def _solve(model, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm, slot):
     drift, 1 after (its trusted extrapolation rate, `_iterate`). Counts the solve in
     `buf.solver`."""
     tolerance = solver_tolerance(dt)
-    warm = _warm_start(model, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance)
+    warm = _warm_start(model, x, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance)
     first = SUBSPACE_FIRST_WARM if warm > 0 else SUBSPACE_FIRST
     if v.shape[0] < SUBSPACE_MIN_BODIES:
         first = MAX_ITERATIONS + 1  # after no sweep
-    sweeps, converged = _iterate(model, nc, buf, v, L, tolerance, IDLE_MARGIN, first, slot)
+    sweeps, converged = _iterate(model, x, nc, dt, buf, v, L, tolerance, IDLE_MARGIN, first, slot)
     buf.solver[0] += 1
     buf.solver[1] += sweeps
     buf.solver[2] += not converged
@@ -1330,12 +1404,12 @@ def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
     for k in range(nc):
         buf.acting[k] = True
     # the bodies have not moved since the last step's `after_drift` assembled its contacts
-    _assemble(model, x, nc, TOUCH_TOLERANCE, buf, buf.counts[3])
+    _assemble(model, x, nc, TOUCH_TOLERANCE, buf, buf.counts[3], True)
     _bounces(model, v, nc, dt, bounce_threshold, buf)
     for k in range(nc):
         gap = buf.gap[k]
         buf.target[k] = -gap / dt if gap >= 0.0 else -BAUMGARTE * gap / dt
-    _solve(model, v, L, nc, dt, buf, buf.pre_keys, buf.pre_lam, buf.counts[0], 0)
+    _solve(model, x, v, L, nc, dt, buf, buf.pre_keys, buf.pre_lam, buf.counts[0], 0)
     for k in range(nc):
         buf.acting[k] = buf.lam[k, 0] > 0.0
     buf.counts[0] = _remember(nc, buf, buf.acting, buf.pre_keys, buf.pre_lam)
@@ -1358,5 +1432,5 @@ def after_drift(model, x, q, v, L, nc, dt, buf):
     buf.counts[3] = nc  # rows for the current pose, until the next drift
     for k in range(nc):
         buf.target[k] = buf.bounce[k]
-    _solve(model, v, L, nc, dt, buf, buf.post_keys, buf.post_lam, buf.counts[1], 1)
+    _solve(model, x, v, L, nc, dt, buf, buf.post_keys, buf.post_lam, buf.counts[1], 1)
     buf.counts[1] = _remember(nc, buf, buf.active, buf.post_keys, buf.post_lam)

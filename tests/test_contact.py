@@ -15,6 +15,7 @@ from comparators import run
 from comparators.metrics import body_arrays, conserved_quantities, pose_errors
 from comparators.reference import model_from_scene
 from reference_sim import contact, rigid
+from reference_sim.quaternion import qmatrix
 from reference_sim.rigid import BOUNCE_STEPS, INTEGRATORS, rigid_step
 
 # Gauss-Seidel impulses stop when no impulse changes a speed by more than 1e-13 m/s; a few
@@ -102,13 +103,15 @@ def test_gauss_seidel_ends_on_targets_no_rigid_motion_meets():
     buf.target[:nc] = (0.0, 0.0, 0.0, disagreement)
     v += scene.dt * model.gravity
     tolerance = contact.VELOCITY_TOLERANCE
-    sweeps, converged = contact._iterate(model, nc, buf, v, L, tolerance, contact.IDLE_MARGIN)
+    sweeps, converged = contact._iterate(
+        model, x, nc, scene.dt, buf, v, L, tolerance, contact.IDLE_MARGIN
+    )
     assert converged and sweeps < contact.MAX_ITERATIONS
     for k in range(nc):
         speed = contact._speed(buf.jac[k, 0], buf.cands[k, 0], buf.cands[k, 2], v, buf.omega)
         assert speed > buf.target[k] - disagreement
     before = np.concatenate([v.ravel(), buf.omega.ravel()])
-    contact._iterate(model, nc, buf, v, L, np.inf, contact.IDLE_MARGIN)  # one sweep
+    contact._iterate(model, x, nc, scene.dt, buf, v, L, np.inf, contact.IDLE_MARGIN)  # one sweep
     after = np.concatenate([v.ravel(), buf.omega.ravel()])
     # |dv| + bound radius |d omega|, as the stopping test measures it
     assert np.abs(after - before).max() * (1.0 + model.bound_radius[0]) < tolerance
@@ -129,7 +132,7 @@ def _settled(name, friction=None):
     contact._assemble(model, x, nc, contact.TOUCH_TOLERANCE, buf, 0)
     buf.target[:nc] = 0.0
     v += scene.dt * model.gravity
-    assert contact._iterate(model, nc, buf, v, L, 1e-14, contact.IDLE_MARGIN)[1]
+    assert contact._iterate(model, x, nc, scene.dt, buf, v, L, 1e-14, contact.IDLE_MARGIN)[1]
     return model, nc, buf, v, L
 
 
@@ -426,3 +429,46 @@ def test_a_trusted_rate_extrapolates_sooner_to_the_same_motion():
         for s in (state, again)
     )
     np.testing.assert_allclose(w, w_again, rtol=0, atol=tolerance)
+
+
+def test_a_contact_on_standby_wakes_when_the_solve_swings_its_body_into_it():
+    """A rod falling flat at 5 m/s, its near end touching the floor, its far end 6 cm up, its
+    mass mostly at its middle: at the step's velocities the far end moves 5 cm, so its
+    contacts start on standby, but stopping the near end pivots the rod and swings the far end
+    down at about 7.8 m/s. The solve must wake them: they push, and the step ends with the far
+    end on the floor (to the drift's second order in the rotation), not 1.8 cm into it."""
+    radius, lift, dt = 0.05, 0.06, 0.01
+    rows = [
+        (x, y, radius + z + (lift if x > 0 else 0.0), 1.0)
+        for x in (-1.0, 1.0)
+        for y in (-0.1, 0.1)
+        for z in (0.0, 0.2)
+    ]
+    rows += [(0.0, y, radius + 0.2 + lift / 2, 10.0) for y in (-0.1, 0.1)]  # out of reach
+    rod = Body(name="rod", particle_radius=radius, particles=rows, velocity=(0.0, 0.0, -5.0))
+    scene = Scene(
+        name="swung_rod",
+        duration=dt,
+        dt=dt,
+        gravity=(0.0, 0.0, 0.0),
+        contact=Contact(restitution=0.0, friction=0.0),
+        planes=(floor(0.0),),
+        bodies=(rod,),
+    )
+    model = model_from_scene(scene)
+    x, q, v, L = initial_state(model, scene)
+    buf = contact.contact_buffers(1, 16, 4)
+    contact.frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
+    contact.reach_into(model, v, buf.omega, dt, (0.0, 0.0, 0.0), buf.reach)
+    assert buf.reach[0] < lift  # the far end is beyond the step's reach at its start
+    assert rigid_step(model, INTEGRATORS["euler"], x, q, v, L, dt, 0.0, buf) == 0
+    far = [i for i, row in enumerate(rows) if row[0] > 0 and row[2] == radius + lift]
+    n = buf.counts[0]  # the contacts that pushed before the drift, by key: particle i's is i
+    pushed = dict(zip(buf.pre_keys[:n].tolist(), buf.pre_lam[:n, 0, 0], strict=True))
+    assert all(pushed.get(i, 0.0) > 0.0 for i in far)
+    rotation = np.reshape(qmatrix(tuple(q[0])), (3, 3))
+    gaps = (x[0] + model.offsets @ rotation.T)[:, 2] - radius
+    omega = np.linalg.norm(contact.world_omega(model, tuple(q[0]), tuple(L[0]), 0))
+    overshoot = model.bound_radius[0] * (omega * dt) ** 2 / 2  # the drift's second order
+    assert gaps[far].min() > -overshoot
+    assert overshoot < 0.1 * (7.8 - lift / dt) * dt  # a tenth of a missed contact's 1.8 cm
