@@ -1114,7 +1114,10 @@ def _bounces(model, v, nc, dt, bounce_threshold, buf):
     `buf.bounce` (needs `_assemble`'s gaps and Jacobians)."""
     for k in range(nc):
         buf.bounce[k] = 0.0
-        if buf.standby[k]:  # its gap is beyond reach: no impact within the step
+        # on standby, its gap is beyond reach: no impact within the step. With no restitution
+        # an impact leaves at normal speed 0, as a resting contact does (`dropped_cube` at rest
+        # 385 -> 380 ns a step, bit-equal)
+        if buf.standby[k] or model.restitution == 0.0:
             continue
         vn = _speed(buf.jac[k, 0], buf.cands[k, 0], buf.cands[k, 2], v, buf.omega)
         if vn < -bounce_threshold and buf.gap[k] + dt * vn < IMPACT_SLACK:
