@@ -563,7 +563,7 @@ def _assemble(model, x, nc, gate, buf, kept, standby=False):
             continue
         n, buf.gap[k], ra, rb = contact_geometry(model, x, buf.rot, buf.cands, k)
         buf.active[k] = buf.acting[k] or buf.gap[k] <= gate
-        buf.standby[k] = standby and buf.active[k] and not _closes(model, buf, buf.reach, k)
+        buf.standby[k] = standby and buf.active[k] and not _closes(buf, buf.reach, k)
         buf.made[k] = buf.keys[k] if buf.active[k] and not buf.standby[k] else -1
         buf.counts[4] += buf.standby[k]
         if buf.made[k] >= 0:
@@ -579,7 +579,7 @@ def _assemble(model, x, nc, gate, buf, kept, standby=False):
 # are bit-equal; in `dropped_cube` (`splitting`) and `cube_rain_8` a woken contact joins the
 # sweeps later, and the runs differ by rounding (5.6e-17, and 2.2e-11 in the pile).
 @kernel
-def _closes(model, buf, reach, k):
+def _closes(buf, reach, k):
     """Whether contact k's bodies, each moving at most its `reach` (m) in the step, could
     close its gap (to within IMPACT_SLACK, the impact test's)."""
     a, b = buf.cands[k, 0], buf.cands[k, 2]
@@ -998,13 +998,13 @@ def _wake(model, x, nc, dt, buf, v, n_busy):
     """Wake the contacts on standby (`_assemble`) whose gap the bodies, at their velocities now
     (as the solve has changed them), could close within the step (`_closes`): they join the
     busy ones in `buf.busy`. Returns the new count of busy contacts. A contact left on standby
-    has a normal speed above its target -gap / dt: it would not push."""
+    has a normal speed above its target -gap / dt: a normal update would leave it no impulse."""
     if buf.counts[4] == 0:
         return n_busy
     reach_into(model, v, buf.omega, dt, (0.0, 0.0, 0.0), buf.reach)  # as the drift will use
     for k in range(nc):
         if buf.standby[k]:
-            if _closes(model, buf, buf.reach, k):
+            if _closes(buf, buf.reach, k):
                 _wake_one(model, x, buf, k)
                 buf.busy[n_busy] = k
                 n_busy += 1
