@@ -11,6 +11,8 @@
   one-body run ends where a run whose first assemblies keep none ends.
 - Idle contacts: Gauss-Seidel sweeps that skip the contacts far from acting end where sweeps
   over every contact end.
+- Skipped solves: where a step skips the solve after the drift (no impulse to warm-start from,
+  none an update would start), a solve would have pushed nothing, bit for bit.
 """
 
 import numpy as np
@@ -30,6 +32,8 @@ from reference_sim.contact import (
     _assemble,
     _bin,
     _iterate,
+    _pushes_nothing,
+    _solve,
     all_pairs,
     contact_buffers,
     find_candidates_into,
@@ -374,3 +378,38 @@ def test_sweeps_that_skip_idle_contacts_end_where_full_sweeps_end(steps):
     assert pushing < nc // 2
     for fast, plain in zip(*results, strict=True):
         np.testing.assert_array_equal(fast, plain)
+
+
+@pytest.mark.parametrize("integrator", ["euler", "splitting"])
+@pytest.mark.parametrize("case", ["dropped_cube", "bounce", "cube_collision", "cube_rain_8"])
+def test_a_skipped_post_drift_solve_would_push_nothing(case, integrator):
+    """After the drift a step skips the solve when no contact pushed after the last drift and
+    none would start to (`_pushes_nothing`): wherever that holds on the state a step leaves (its
+    post-drift rows, targets and velocities), a solve from no impulse must end after one sweep
+    with no impulse and every velocity and momentum bit for bit as it was. Skips must happen
+    (bodies leaving the floor or each other, pivoting, resting with `euler`; with `splitting`
+    the drift's half kick of gravity makes a resting or pivoting body's contacts approach, and
+    `dropped_cube` skips 3 of its 500)."""
+    scene = CATALOG[case]
+    model, state = _state(scene)
+    nb = len(model.body_mass)
+    threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * scene.dt  # as `run_rigid`'s
+    x, q, v, L = (a.copy() for a in state)
+    buf = contact_buffers(nb, 64 * nb, nb * nb)
+    n_steps = min(1000, round(scene.duration / scene.dt))
+    skipped = 0
+    for _ in range(n_steps):
+        remembered = buf.counts[1]
+        assert rigid_step(model, INTEGRATORS[integrator], x, q, v, L, scene.dt, threshold, buf) == 0
+        nc = buf.counts[3]  # the candidates after the drift, assembled at this pose
+        if nc == 0 or not _pushes_nothing(model, nc, buf, v):
+            continue
+        skipped += remembered == 0
+        work = ContactBuffers(*(a.copy() for a in buf))
+        vv, LL = v.copy(), L.copy()
+        _solve(model, x, vv, LL, nc, scene.dt, work, work.post_keys, work.post_lam, 0, 1)
+        assert work.solver[1] - buf.solver[1] == 1  # one sweep
+        assert not work.lam[:nc].any()
+        np.testing.assert_array_equal(vv, v)
+        np.testing.assert_array_equal(LL, L)
+    assert skipped > 0
