@@ -1458,9 +1458,9 @@ def after_drift(model, x, q, v, L, nc, dt, buf):
     """Impulses after the drift on the contacts that pushed before it or bounce
     (`buf.acting`) or touch now (gap below TOUCH_TOLERANCE): the bounce targets of
     `before_drift`, else inelastic (normal speed >= 0, and friction). Changes v and L; skips
-    a solve known to push nothing (`_pushes_nothing`). Keeps
-    the rows below `buf.counts[3]`: the caller vouches that no body has moved by more than
-    rounding (`rigid.POSE_ROUNDING`) since they were assembled."""
+    a solve known to push nothing (`_pushes_nothing`). Keeps the rows below `buf.counts[3]`:
+    the caller vouches that no body has moved by more than rounding (`rigid.POSE_ROUNDING`)
+    since they were assembled."""
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
     _assemble(model, x, nc, TOUCH_TOLERANCE, buf, buf.counts[3])
     buf.counts[3] = nc  # rows for the current pose, until the next drift
