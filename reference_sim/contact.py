@@ -1366,12 +1366,15 @@ def _warm_start(model, x, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance)
 
 
 @inlined_kernel
-def _remember(nc, buf, keep, keys, lam):
-    """Keys and impulses of the contacts flagged in `keep`, in key order, for the next step,
-    with their impulses of the two steps before (`buf.hist`); returns how many."""
+def _remember(nc, buf, keys, lam):
+    """Keys and impulses of the contacts that pushed (normal impulse > 0), in key order, for
+    the next step, with their impulses of the two steps before (`buf.hist`); returns how many.
+    A contact without impulse would start from none either way. (After the drift every active
+    contact was remembered before 4a2ff45: every catalog run but `dropped_cube` (`euler`,
+    2.2e-16 apart) is bit-equal to that, with the same sweeps.)"""
     n = 0
     for k in range(nc):
-        if keep[k]:
+        if buf.lam[k, 0] > 0.0:
             keys[n] = buf.keys[k]
             for d in range(3):
                 lam[n, 0, d] = buf.lam[k, d]
@@ -1427,11 +1430,9 @@ def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
         gap = buf.gap[k]
         buf.target[k] = -gap / dt if gap >= 0.0 else -BAUMGARTE * gap / dt
     _solve(model, x, v, L, nc, dt, buf, buf.pre_keys, buf.pre_lam, buf.counts[0], 0)
+    buf.counts[0] = _remember(nc, buf, buf.pre_keys, buf.pre_lam)
     for k in range(nc):
-        buf.acting[k] = buf.lam[k, 0] > 0.0
-    buf.counts[0] = _remember(nc, buf, buf.acting, buf.pre_keys, buf.pre_lam)
-    for k in range(nc):
-        buf.acting[k] = buf.acting[k] or buf.bounce[k] > 0.0
+        buf.acting[k] = buf.lam[k, 0] > 0.0 or buf.bounce[k] > 0.0
     for b in range(v.shape[0]):
         for i in range(3):
             v[b, i] -= drift_gravity[i]
@@ -1482,9 +1483,4 @@ def after_drift(model, x, q, v, L, nc, dt, buf):
         buf.solver[0] += 1
         return
     _solve(model, x, v, L, nc, dt, buf, buf.post_keys, buf.post_lam, buf.counts[1], 1)
-    # as before the drift, the contacts that pushed: one without an impulse would start from
-    # none (its trend then starts with it; every catalog run but `dropped_cube` (`euler`,
-    # 2.2e-16 apart) is bit-equal, with the same sweeps, to remembering every active contact)
-    for k in range(nc):
-        buf.acting[k] = buf.lam[k, 0] > 0.0
-    buf.counts[1] = _remember(nc, buf, buf.acting, buf.post_keys, buf.post_lam)
+    buf.counts[1] = _remember(nc, buf, buf.post_keys, buf.post_lam)
