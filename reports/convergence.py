@@ -125,15 +125,18 @@ def cost_to_tolerance(
     return pd.DataFrame(rows, columns=columns)
 
 
-def lowest_front(df: pd.DataFrame, x: str, y: str, by: str) -> pd.Series:
-    """At each budget (every distinct finite x), which `by` group reaches the smallest y with
-    rows costing at most that budget. Index: budget; values: the group's name."""
+def lowest_front(df: pd.DataFrame, x: str, y: str, by: str, floor: float = 0.0) -> pd.DataFrame:
+    """At each budget (every distinct finite x), which `by` groups reach the smallest y with
+    rows costing at most that budget. A y below `floor` counts as `floor`: errors there are
+    rounding, so every group below it ties. Index: budget; columns: the groups; True where the
+    group is lowest there (a group with no row within the budget never is)."""
     finite = df[np.isfinite(df[x].astype(float)) & np.isfinite(df[y].astype(float))]
-    winners = {}
+    groups = sorted(finite[by].unique())
+    lowest = {}
     for budget in np.unique(finite[x]):
-        within = finite[finite[x] <= budget]
-        winners[budget] = within.loc[within[y].idxmin(), by]
-    return pd.Series(winners, name=by, dtype=object)
+        best = finite[finite[x] <= budget].groupby(by)[y].min().clip(lower=floor)
+        lowest[budget] = best.reindex(groups) == best.min()
+    return pd.DataFrame.from_dict(lowest, orient="index", columns=groups).astype(bool)
 
 
 def largest_stable_dt(results: pd.DataFrame) -> pd.DataFrame:

@@ -403,12 +403,19 @@ def _pareto_sentence(runs: pd.DataFrame) -> str:
         )
     if data["engine"].nunique() == 1:
         return f"Only {data['engine'].iloc[0]} has valid runs with an error here. {smallest}"
-    counts = lowest_front(data, plots.COST, plots.ERROR, "engine").value_counts()
+    lowest = lowest_front(data, plots.COST, plots.ERROR, "engine", ERROR_FLOOR_DEG)
+    counts = lowest.sum().sort_values(ascending=False, kind="stable")
+    leader = counts.index[0]
+    tied = lowest[lowest[leader] & (lowest.sum(axis=1) > 1)]
+    ties = ""
+    if len(tied):
+        others = [e for e in tied.columns if e != leader and tied[e].any()]
+        ties = f", {len(tied)} of them tied with {' and '.join(others)}"
     return (
-        f"Lowest front: **{counts.index[0]}**, which reaches the smallest error at "
-        f"{counts.iloc[0]} of {counts.sum()} time budgets (a budget is each valid run's cost; "
-        "an engine's error at a budget is the smallest error among its runs costing no more). "
-        + smallest
+        f"Lowest front: **{leader}**, which reaches the smallest error at "
+        f"{counts.iloc[0]} of {len(lowest)} time budgets{ties} (a budget is each valid run's "
+        "cost; an engine's error at a budget is the smallest error among its runs costing no "
+        f"more, and errors below {ERROR_FLOOR_DEG:g} deg, rounding, count as equal). " + smallest
     )
 
 

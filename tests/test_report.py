@@ -24,9 +24,10 @@ from reports.convergence import (
     cost_to_tolerance,
     fit_orders,
     fit_power_law,
+    lowest_front,
     pareto_front,
 )
-from reports.report import expected_orders, missing_references, write_report
+from reports.report import _pareto_sentence, expected_orders, missing_references, write_report
 
 SCENE = dataclasses.replace(CATALOG["tumbling_box"], duration=2.0)
 DTS = (0.02, 0.01, 0.005, 0.0025)
@@ -174,6 +175,39 @@ def test_pareto_front():
     # c: same cost as b, more error; d: same error as b, more cost; f: more of both than e;
     # g: no error; h: a duplicate of e
     assert list(pareto_front(df, "cost", "error").index) == ["a", "b", "e"]
+
+
+# Runs of two engines, each costing one budget: the reference is lowest alone above the
+# rounding floor, mujoco alone at cost 3, and at cost 4 both are below ERROR_FLOOR_DEG.
+FRONT_RUNS = pd.DataFrame(
+    {
+        "engine": ["reference", "mujoco", "mujoco", "reference"],
+        "integrator": ["splitting", "Euler", "RK4", "exact"],
+        "dt": [0.01, 0.01, 0.001, 0.01],
+        "cost": [1.0, 2.0, 3.0, 4.0],
+        "error": [1e-3, 1e-2, 1e-11, 5e-10],
+    }
+)
+
+
+def test_lowest_front_counts_errors_below_the_floor_as_ties():
+    front = lowest_front(FRONT_RUNS, "cost", "error", "engine", ERROR_FLOOR_DEG)
+    assert list(front.index) == [1.0, 2.0, 3.0, 4.0]
+    # at cost 1 mujoco has no run: it is not lowest there
+    assert front["reference"].tolist() == [True, True, False, True]
+    assert front["mujoco"].tolist() == [False, False, True, True]
+    # without a floor the smaller rounding error wins
+    bare = lowest_front(FRONT_RUNS, "cost", "error", "engine")
+    assert bare["reference"].tolist() == [True, True, False, False]
+
+
+def test_pareto_sentence_names_the_ties():
+    runs = FRONT_RUNS.rename(columns={"error": "orientation_error_deg"}).assign(
+        verdict="ok", duration=1.0, wall_s=FRONT_RUNS["cost"]
+    )
+    sentence = _pareto_sentence(runs)
+    assert "**reference**" in sentence
+    assert "at 3 of 4 time budgets, 1 of them tied with mujoco" in sentence
 
 
 def test_cost_to_tolerance():
