@@ -204,6 +204,12 @@ def plot_work_precision(runs: pd.DataFrame, path: Path) -> Path | None:
         line = {"color": run_style(engine, "")["color"], "linewidth": 2, "alpha": 0.5}
         ax.step(front[COST], front[ERROR], where="post", label=f"{engine} Pareto front", **line)
     _log_axes(ax, x=data[COST])
+    if data[ERROR].min() < ERROR_FLOOR_DEG:  # the report ranks errors down there as ties
+        bottom, top = ax.get_ylim()
+        shade = {"color": "grey", "alpha": 0.15, "linewidth": 0}
+        label = f"rounding, below {ERROR_FLOOR_DEG:g} deg (ties)"
+        ax.axhspan(bottom, ERROR_FLOOR_DEG, label=label, **shade)
+        ax.set_ylim(bottom, top)
     ax.set(xlabel="stepping wall time per simulated second (s/s)")
     ax.set(ylabel="max orientation error (deg)")
     ax.set_title(f"{runs['case'].iloc[0]}: work-precision (lower left is better)", fontsize=10)
