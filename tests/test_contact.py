@@ -239,6 +239,51 @@ def test_one_body_scenes_take_no_subspace_steps():
     assert one["solves"] > 0 and one["subspace_per_solve"] == 0 and one["at_limit"] == 0
 
 
+# `dropped_cube` is its own mirror image in x (its COM at x = 0, spinning about x): it can
+# neither turn about y or z nor move along x. Converged solves keep it so to within the order
+# of their sweeps: at most 9.3e-6 rad/s about y (`euler`, dt 0.01), 5e-10 with `splitting`.
+# The cycling solves that `RESTART_SWEEPS` replaces turned it at 5e-3 rad/s.
+SYMMETRY_TOLERANCE = 1e-4  # rad/s
+
+
+def _off_axis_turn(w):
+    """The largest angular speed (rad/s) about y or z in a run of `dropped_cube`, w (S, 3)."""
+    return float(np.abs(np.asarray(w)[:, 1:]).max())
+
+
+@pytest.mark.parametrize("dt", [0.005, 0.01, 0.02])
+@pytest.mark.parametrize("integrator", ["euler", "splitting"])
+def test_a_mirror_symmetric_landing_converges_and_stays_symmetric(integrator, dt):
+    """Every solve of `dropped_cube` converges and the cube never turns off its spin axis; at dt
+    0.02 (`euler`) that takes the restart of two solves astray (RESTART_SWEEPS)."""
+    traj = run(CATALOG["dropped_cube"], "reference", integrator, dt=dt)
+    assert traj.meta.solver["at_limit"] == 0
+    turn = _off_axis_turn(body_arrays(traj, "cube")["w"])
+    assert turn < SYMMETRY_TOLERANCE, f"dropped_cube {integrator} dt {dt}: {turn:.2e} rad/s"
+
+
+def test_without_the_restart_the_flat_landing_cycles_and_turns(monkeypatch):
+    """`dropped_cube` (`euler`, dt 0.02) stepped through the kernels' Python code without the
+    restart (RESTART_MAX_BODIES 0): solves stop unconverged as it lands and it turns off
+    its spin axis by more than SYMMETRY_TOLERANCE."""
+    monkeypatch.setattr(contact, "RESTART_MAX_BODIES", 0)
+    for name in ("_iterate", "_solve"):
+        monkeypatch.setattr(contact, name, getattr(contact, name).py_func)
+    for name in ("before_drift", "after_drift"):
+        monkeypatch.setattr(rigid, name, getattr(contact, name).py_func)
+    scene, dt = CATALOG["dropped_cube"], 0.02
+    model = model_from_scene(scene)
+    x, q, v, L = initial_state(model, scene)
+    buf = contact.contact_buffers(1, 16, 4)
+    threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * dt
+    w = []
+    for _ in range(scene.steps(dt, scene.duration)):
+        assert rigid_step.py_func(model, INTEGRATORS["euler"], x, q, v, L, dt, threshold, buf) == 0
+        w.append(contact.world_omega(model, q[0], L[0], 0))
+    assert buf.solver[2] > 0
+    assert _off_axis_turn(w) > SYMMETRY_TOLERANCE
+
+
 def _history(*steps):
     """A warm-start list of one contact: its impulses (normal, two tangents) of the last three
     steps, newest first, NaN for steps it did not exist."""
