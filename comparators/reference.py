@@ -17,6 +17,8 @@ from reference_sim.contact import (
     RATE_AGREEMENT,
     RATE_MAX,
     RATE_SWEEPS,
+    RESTART_MAX_BODIES,
+    RESTART_SWEEPS,
     STALL_PROGRESS,
     STALL_SWEEPS,
     SUBSPACE_FIRST,
@@ -127,6 +129,10 @@ def _contact_settings(scene: Scene, integrator: str, dt: float) -> dict:
             f"after {RATE_SWEEPS} sweeps whose velocity changes shrank by a steady ratio rho "
             f"(within {RATE_AGREEMENT} of it, rho < {RATE_MAX}), the next sweep's impulse "
             "change times rho / (1 - rho) is added"
+        ),
+        "restart": (
+            f"a warm-started solve in a scene of at most {RESTART_MAX_BODIES} body not converged "
+            f"in {RESTART_SWEEPS} sweeps starts again from no impulse, once"
         ),
         "iterations": MAX_ITERATIONS,
         "stall": (

@@ -39,7 +39,9 @@ together); one that slides, normal first, then friction. Sweeps skip the contact
 acting until the rest have converged (IDLE_MARGIN). Early in a solve a few subspace steps
 solve the contacts that push all together, directly (`_subspace_step`), for the slow modes of
 stacks (scenes of two bodies or more); once the sweeps converge at a steady rate, the impulses
-are extrapolated along it (`_extrapolate`). They work in `ContactBuffers`, allocated once per run.
+are extrapolated along it (`_extrapolate`). A warm-started solve of one body that the sweeps
+have not converged in RESTART_SWEEPS starts again from no impulse. They work in
+`ContactBuffers`, allocated once per run.
 """
 
 import math
