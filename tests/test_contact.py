@@ -255,7 +255,7 @@ def _off_axis_turn(w):
 @pytest.mark.parametrize("integrator", ["euler", "splitting"])
 def test_a_mirror_symmetric_landing_converges_and_stays_symmetric(integrator, dt):
     """Every solve of `dropped_cube` converges and the cube never turns off its spin axis; at dt
-    0.02 (`euler`) that takes the restart of two solves astray (RESTART_SWEEPS)."""
+    0.02 (`euler`) that takes restarting a solve led astray (RESTART_SWEEPS)."""
     traj = run(CATALOG["dropped_cube"], "reference", integrator, dt=dt)
     assert traj.meta.solver["at_limit"] == 0
     turn = _off_axis_turn(body_arrays(traj, "cube")["w"])
@@ -266,11 +266,7 @@ def test_without_the_restart_the_flat_landing_cycles_and_turns(monkeypatch):
     """`dropped_cube` (`euler`, dt 0.02) stepped through the kernels' Python code without the
     restart (RESTART_MAX_BODIES 0): solves stop unconverged as it lands and it turns off
     its spin axis by more than SYMMETRY_TOLERANCE."""
-    monkeypatch.setattr(contact, "RESTART_MAX_BODIES", 0)
-    for name in ("_iterate", "_solve"):
-        monkeypatch.setattr(contact, name, getattr(contact, name).py_func)
-    for name in ("before_drift", "after_drift"):
-        monkeypatch.setattr(rigid, name, getattr(contact, name).py_func)
+    _python_solves(monkeypatch, RESTART_MAX_BODIES=0)
     scene, dt = CATALOG["dropped_cube"], 0.02
     model = model_from_scene(scene)
     x, q, v, L = initial_state(model, scene)
@@ -361,15 +357,21 @@ def _rain_step(model, state, buf, step=rigid_step):
     return step(model, INTEGRATORS["euler"], *state, dt, threshold, buf)
 
 
-def _rerun_in_python(monkeypatch, step, **settings):
-    """Step `step` again from its state (in place), through the kernels' Python code with the
-    contact module's `settings` changed; returns what the solver counted."""
+def _python_solves(monkeypatch, **settings):
+    """Make the contact solves run the kernels' Python code, which reads the contact module's
+    `settings` as changed here (compiled code has its constants built in)."""
     for name, value in settings.items():
         monkeypatch.setattr(contact, name, value)
     for name in ("_iterate", "_solve"):
         monkeypatch.setattr(contact, name, getattr(contact, name).py_func)
     for name in ("before_drift", "after_drift"):
         monkeypatch.setattr(rigid, name, getattr(contact, name).py_func)
+
+
+def _rerun_in_python(monkeypatch, step, **settings):
+    """Step `step` again from its state (in place), through the kernels' Python code with the
+    contact module's `settings` changed; returns what the solver counted."""
+    _python_solves(monkeypatch, **settings)
     solver = step.buf.solver.copy()
     _rain_step(step.model, step.state, step.buf, rigid_step.py_func)
     return step.buf.solver - solver
