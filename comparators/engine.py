@@ -1,9 +1,14 @@
-"""One engine interface for every engine, and the registry of engines by name."""
+"""One engine interface for every engine, and the registry of engines by name.
 
+The registry `ENGINES` is filled by `register`; `register_engines` loads engines from a table of
+names to "module:Class" targets, the form an entry point takes. The built-in engines are the
+table `BUILT_IN_ENGINES`, loaded when this module is first imported.
+"""
+
+import importlib
 import math
+from collections.abc import Mapping
 from typing import Protocol
-
-import numpy as np
 
 from cases.errors import InputError
 from cases.scene import Scene
@@ -29,12 +34,12 @@ class Engine(Protocol):
 
 
 ENGINES: dict[str, Engine] = {}
-
-
-def sample_steps(n_steps: int, stride: int) -> np.ndarray:
-    """The step indices every engine samples: 0, every `stride` steps, and the last one."""
-    steps = np.arange(0, n_steps + 1, stride)
-    return steps if steps[-1] == n_steps else np.append(steps, n_steps)
+# The engines shipped with the suite, in the order tables list them: name -> "module:Class".
+BUILT_IN_ENGINES = {
+    "mujoco": "comparators.mujoco_engine:MujocoEngine",
+    "pybullet": "comparators.pybullet_engine:PybulletEngine",
+    "reference": "comparators.reference:ReferenceEngine",
+}
 
 
 def failure_reason(exc: Exception) -> str:
@@ -45,8 +50,24 @@ def failure_reason(exc: Exception) -> str:
 
 
 def register(engine: Engine) -> Engine:
+    """Add `engine` to `ENGINES` under its name (replacing one of the same name)."""
     ENGINES[engine.name] = engine
     return engine
+
+
+def load_engine(target: str) -> Engine:
+    """The engine a "module:Class" target names: the class imported and instantiated."""
+    module, _, attribute = target.partition(":")
+    return getattr(importlib.import_module(module), attribute)()
+
+
+def register_engines(targets: Mapping[str, str]) -> None:
+    """`register` the engine of every name -> "module:Class" target, in order."""
+    for name, target in targets.items():
+        engine = load_engine(target)
+        if engine.name != name:
+            raise ValueError(f"engine {target!r} is named {engine.name!r}, registered as {name!r}")
+        register(engine)
 
 
 def get_engine(name: str) -> Engine:
@@ -85,3 +106,6 @@ def run(
     traj = eng.run(scene, integrator, float(dt), float(duration))
     check_parity(scene, traj.meta)
     return traj
+
+
+register_engines(BUILT_IN_ENGINES)

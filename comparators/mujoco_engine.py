@@ -1,138 +1,21 @@
 """MuJoCo as an engine: one free body per scene body, one sphere geom per particle.
 
-Model (MJCF text compiled by `mujoco.MjModel.from_xml_string`; `mjcf` shows it)
-------------------------------------------------------------------------------
-* Each body's frame sits AT ITS COM with identity orientation at t = 0 and carries a
-  `<freejoint/>`. So qpos[0:3] is the COM (checked against `data.xipos`), qpos[3:7] is exactly
-  the suite's quaternion (w, x, y, z; placement at t = 0 -> now), qvel[0:3] the COM velocity in
-  world axes, and qvel[3:6] the angular velocity in BODY axes: rows report R(q) qvel[3:6].
-  `alignfree="false"` keeps MuJoCo from moving the joint frame onto the principal axes.
-* Inertia: an explicit `<inertial pos="0 0 0" mass=... diaginertia=... quat=...>` holding the
-  particle tensor's principal moments and axes (numpy `eigh`), with
-  `inertiafromgeom="false"`, so the sphere geoms add neither mass nor inertia. Not
-  `fullinertia`: a planar cluster has C = A + B exactly, MuJoCo's own eigen-solver rounds it to
-  A + B < C by an ulp and the compiler rejects the body ("inertia must satisfy A + B >= C");
-  here C is clamped to A + B when rounding breaks it (a 1e-16 relative change). Mass and
-  inertia read back from `body_mass`, `body_inertia`, `body_iquat` equal the scene's to 1e-15.
-* Only what the scene needs: no `scene.has_contact` -> `<flag contact="disable"
-  constraint="disable"/>` and no planes; zero gravity -> gravity "0 0 0" and `<flag
-  gravity="disable"/>`. `autoreset` is always disabled, so a diverging run ends in NaN instead
-  of MuJoCo silently restarting it from qpos0. Joints have no damping, armature, stiffness or
-  frictionloss (MuJoCo's defaults, read back into the settings); fluid forces are off (density
-  = viscosity = 0). The pipeline stages nothing in a scene acts on (`UNUSED_STAGES`: equality,
-  friction loss, limits, springs, dampers, actuation, sensors) are disabled, so MuJoCo skips
-  them: the same states to the bit, 5 to 20 % faster stepping.
-* Same-body geoms never collide in MuJoCo; different free bodies do (contype = conaffinity =
-  1 everywhere; `filterparent` drops only parent-child pairs, and two free bodies are siblings
-  under the world, which it never filters), and so does every particle with every plane.
+Each body's frame sits at its COM with identity orientation at t = 0 and carries a free joint;
+its inertia is an explicit `<inertial>` with the particle tensor's principal moments and axes
+(sphere geoms add none). The model holds only what the scene needs (no contact, no planes; no
+gravity, gravity off) and skips the pipeline stages no scene acts on. Restitution is not a
+MuJoCo parameter: `contact_parameters` maps the scene's e to a linear spring-damper (solref,
+flat solimp) at MuJoCo's stiffest timeconst. Stepping goes through `mujoco.rollout` in chunks,
+with MuJoCo's profiling timer off (process-global); a divergence ends the samples in NaN.
 
-Contact mapping (only when `scene.has_contact`): see `contact_parameters`
-------------------------------------------------------------------------
-Restitution is not a MuJoCo parameter. A contact is a soft constraint whose reference
-acceleration is -b v - k d r with, for solref = (timeconst, dampratio) and impedance d = dmax,
-d b = 2 / timeconst and d^2 k = 1 / (timeconst dampratio)^2: a spring-damper of natural
-frequency w = 1 / (timeconst zeta) and damping ratio exactly zeta = dampratio.
-
-* dampratio = zeta from e = exp(-pi zeta / sqrt(1 - zeta^2)): zeta = -ln e / sqrt(pi^2 + ln^2 e),
-  and 1 (critical) for e = 0. e = 1 (zeta = 0) has no (timeconst, dampratio) form: it uses the
-  direct form solref = (-w^2, 0) with the same w.
-* timeconst = TIMECONST_STEPS dt / zeta with TIMECONST_STEPS = 2, i.e. w dt = 1/2 whatever e.
-  2 dt is MuJoCo's floor (`refsafe` clamps anything shorter), the stiffest contact it allows:
-  at dt 0.01 the cube in `dropped_cube` sinks at most 27 mm (Euler) / 41 mm (RK4) on impact,
-  less than the ~60 mm it travels in one step before the contact is even detected; 3 dt gives
-  44 / 63 mm and 4 dt 66 / 85 mm. Scaling timeconst with 1/zeta holds w dt fixed: a fixed
-  timeconst of 2 dt makes w dt = 1 / (2 zeta), past the explicit spring's stability limit of 2
-  for zeta < 0.25, and a cube dropped flat then leaves the floor 2.7x (e = 0.5), 15x
-  (e = 0.75) and 112x (e = 0.9) faster than it came (Euler, dt 0.01).
-* solimp = (0.99, 0.99, 0.001, 0.5, 2): dmin = dmax makes the impedance flat, so the contact
-  is a linear spring-damper at every depth (MuJoCo's default 0.9 -> 0.95 over 1 mm is not) and
-  the restitution depends on zeta alone. d = 0.99 lets only 1 % of the load through the
-  regularisation: the steady penetration is (1 - d) g (timeconst zeta)^2 / n for n supporting
-  contacts (a static stiffness w^2 / (1 - d) per unit mass, not w^2): 1.0e-5 m for the cube
-  on 4 particles at dt 0.01 and 1.0e-7 m at 0.001, against g / (n w^2) = 1 mm and 0.01 mm.
-* friction = (mu, 0, 0) on every geom (MuJoCo combines the two geoms' friction by max; all are
-  equal), condim 3: Coulomb sliding friction only, like the reference (no torsional or rolling
-  friction: a particle is a point contact; the spin/roll coefficients are unused at condim 3).
-  mu = 0 uses condim 1, exactly frictionless (condim 3 would clamp mu to MuJoCo's 1e-5).
-* cone elliptic: the reference's isotropic Coulomb disc (MuJoCo's default pyramid is not).
-  Solver Newton, 100 iterations, tolerance 1e-8 (MuJoCo's defaults; 1e-12 moves the rest
-  heights below by < 2e-14 m), impratio 1, no noslip, margin = gap = 0 (contacts start at
-  touch).
-
-How well the mapping holds across dt. Rebound ratio v_out / v_in of the seed's cube falling flat
-onto the floor without gravity, over 16 impact phases (first touch at 0, 1/16, ..., 15/16 of a
-step into a step), mean [min, max]; the same at 2 and 6 m/s:
-
-    e     Euler dt 0.01      Euler dt 0.001     RK4 dt 0.01        RK4 dt 0.001       unilateral
-    0.00  0.13 [0.01, 0.24]  0.14 [0.02, 0.26]  0.13 [0.10, 0.17]  0.14 [0.10, 0.18]  0.135
-    0.10  0.21 [0.13, 0.31]  0.22 [0.14, 0.33]  0.25 [0.21, 0.30]  0.26 [0.21, 0.31]  0.253
-    0.25  0.33 [0.26, 0.42]  0.34 [0.26, 0.43]  0.36 [0.31, 0.40]  0.36 [0.32, 0.41]  0.361
-    0.50  0.53 [0.48, 0.60]  0.54 [0.48, 0.61]  0.55 [0.52, 0.59]  0.55 [0.52, 0.60]  0.550
-    0.75  0.76 [0.74, 0.81]  0.76 [0.74, 0.82]  0.76 [0.74, 0.78]  0.76 [0.75, 0.79]  0.763
-    0.90  0.90 [0.89, 0.92]  0.90 [0.89, 0.92]  0.90 [0.89, 0.92]  0.90 [0.89, 0.92]  0.902
-    1.00  1.00 [0.98, 1.02]  1.00 [0.98, 1.02]  1.00 [0.99, 1.01]  1.00 [0.99, 1.01]  1.000
-
-(implicit and implicitfast give Euler's numbers to the digits shown.) timeconst is proportional
-to dt, so without gravity the discrete contact is the same in units of dt: the rebound does not
-depend on dt (nor on speed), only on where in a step the contact starts. That phase scatters
-single bounces by up to +-0.12 (Euler removes the approach speed in one step at timeconst = 2 dt;
-RK4 spreads it over its stages, +-0.04). The means do not follow the formula but the
-"unilateral" column: the restitution of a linear spring-damper that lets go when its force reaches
-zero (integrated here in continuous time), which is what MuJoCo's contact does. The formula's
-e(zeta) is the bilateral oscillator's velocity ratio at zero crossing; the two agree for e >=
-0.75 and part below: at e = 0 the critical damper still returns e^-2 = 0.135 of the speed, and
-no finite dampratio gives e = 0 (the unilateral e is 0.048 at zeta = 2, 0.014 at 4). Inverting
-the unilateral curve instead of the formula would centre every e >= 0.14.
-
-Rest: `dropped_cube` (e = 0, mu = 0.5) comes to rest on a face by t = 2.75 s with its COM at
-0.699990 m (dt 0.01) and 0.6999999 m (dt 0.001) with every integrator (the four agree to 2e-14
-m): the 1e-5 and 1e-7 m steady penetrations above.
-
-Stepping
---------
-`mujoco.rollout` (single thread) runs the steps in C and returns every state; it is 1.1 to 1.8x
-faster than a Python loop of `mj_step` that copies the samples (median of 7; tumbling_box and
-dropped_cube, dt 0.01 and 0.001; most for Euler with per-step samples, least for RK4 whose
-steps cost most) and gives bitwise the same states (`step_loop` is kept for that check). It
-runs in chunks of at most CHUNK_STEPS steps so memory stays bounded; each chunk starts from the
-last state and, because rollout zeroes the warm start unless given one, from the previous
-chunk's `qacc_warmstart`. Rollout uses the MjData it is given as scratch and leaves it at the
-final state: everything read from `data` (the parity readback) is read before stepping. Rollout
-stops stepping at the first MuJoCo warning and repeats the last state: divergence warnings
-(bad qpos, qvel, qacc) turn the samples from there on into NaN; any other warning (contact or
-constraint buffer full, singular inertia) raises. MuJoCo also appends each warning's text to
-MUJOCO_LOG.TXT in the working directory.
-
-The fastest honest path, with the same states:
-* MuJoCo's C library leaves its profiling-timer callback `mjcb_time` NULL; the Python bindings
-  install a clock there (for `MjData.timer`), read twice per pipeline stage. Stepping runs with
-  it off (`profiling_timer_off`, through ctypes: the bindings' `set_mjcb_time(None)` reinstalls
-  their clock) and restores it after. It is process-global: runs in concurrent threads may
-  leave it off, which changes no result. On one free body this alone made stepping 1.5 to 3
-  times faster.
-* rollout is called unchecked (`skip_checks`) into a preallocated array: the checked call costs
-  about 90 us, a tenth of a 1000-step free-body run. Its output state is always
-  mjSTATE_FULLPHYSICS (the rollout API has no state spec for it); here that is exactly time,
-  qpos and qvel, the least the trajectory needs. No sensor data is written (no sensors).
-
-Speed (steps/s, stepping alone, through `comparators.engine.run` as `rigidbench bench` times
-it, dt 0.01; the fastest of 75 runs, the least disturbed by other jobs on this shared 2-core
-machine, whose medians varied 2 to 3x with their load; in parentheses before the two changes
-above and the disabled stages): free_spin_cube Euler 8.9e5 (4.4e5), RK4 2.8e5 (1.4e5);
-tumbling_box Euler 6.8e5 (3.6e5), RK4 2.0e5 (1.1e5); dropped_cube Euler 1.6e5 (1.3e5), RK4
-4.3e4 (3.5e4), where contact dominates. Model building: 2.5 ms.
-
-Accuracy on tumbling_box (largest orientation error over 10 s against `cases.exact`): RK4
-4.4e-7 deg at dt 0.01 and 1.2e-10 deg at dt 0.001; Euler 20 / 2.0 deg, implicit and
-implicitfast 19 / 2.0 deg (first order; on a free body implicit and implicitfast agree to
-1e-12 deg and both differ from Euler).
+The mapping, its rebound table across dt, the stepping path and what was measured:
+docs/engines/mujoco.md.
 """
 
 from __future__ import annotations
 
 import ctypes
 import math
-import time
 from contextlib import contextmanager
 from functools import cache
 from pathlib import Path
@@ -140,29 +23,31 @@ from pathlib import Path
 import numpy as np
 
 from cases.scene import Contact, Scene
-from comparators.engine import register, sample_steps
+from comparators.harness import RunTimer, sample_steps
 from comparators.parity import body_readback
-from comparators.trajectory import RunMeta, Trajectory, package_versions
+from comparators.trajectory import Trajectory, package_versions
 from reference_sim.inertia import principal_frame
 
 try:
     import mujoco
     from mujoco import rollout as mj_rollout
 
-    MISSING = None
+    UNAVAILABLE = None
 except ImportError as exc:  # the module still imports; the engine says why it cannot run
     mujoco = None
     mj_rollout = None
-    MISSING = f"the mujoco package cannot be imported ({exc})"
+    UNAVAILABLE = f"the mujoco package cannot be imported ({exc})"
 
 INTEGRATORS = ("Euler", "RK4", "implicit", "implicitfast")
-# Order of the orientation error in dt on tumbling_box before its flip (measured: 1.00, 3.98,
-# 1.00, 1.00).
+# Order of the orientation error in dt on tumbling_box before its flip (measured slopes:
+# docs/engines/mujoco.md).
 ORDERS = {"Euler": 1, "RK4": 4, "implicit": 1, "implicitfast": 1}
 
-# timeconst = TIMECONST_STEPS dt / zeta: the stiffest contact MuJoCo allows (see above).
+# timeconst = TIMECONST_STEPS dt / zeta: the stiffest contact MuJoCo allows (2 dt, its `refsafe`
+# floor), with w dt fixed whatever e.
 TIMECONST_STEPS = 2.0
-# Flat impedance 0.99: a linear spring-damper at every depth, 1 % load leak (see above).
+# Flat impedance 0.99: a linear spring-damper at every depth, so e depends on zeta alone; 1 % of
+# the load leaks through the regularisation.
 SOLIMP = (0.99, 0.99, 0.001, 0.5, 2.0)
 CONE = "elliptic"
 SOLVER = "Newton"
@@ -198,7 +83,7 @@ def damping_ratio(restitution: float) -> float:
 
 
 def contact_parameters(contact: Contact, dt: float) -> dict:
-    """MuJoCo geom contact attributes for the scene's e and mu at step dt (module docstring).
+    """MuJoCo geom contact attributes for the scene's e and mu at step dt (docs/engines/mujoco.md).
 
     Returns solref, solimp, friction (sliding, torsional, rolling), condim, and the damping
     ratio and natural frequency (rad/s) the solref encodes.
@@ -362,8 +247,7 @@ def _timer_callback():
     """libmujoco's global `mjcb_time` as a ctypes pointer, or None where it cannot be reached.
 
     MuJoCo's C library leaves it NULL; the Python bindings install a clock there (for
-    `MjData.timer`), which MuJoCo then reads twice per pipeline stage: measured 1.5 to 3 times
-    slower stepping of one free body.
+    `MjData.timer`), which MuJoCo then reads twice per pipeline stage, slowing stepping.
     """
     folder = Path(mujoco.__file__).parent
     for pattern in ("libmujoco.so*", "libmujoco*.dylib", "mujoco.dll"):
@@ -489,7 +373,7 @@ def _flag_names(enum, bits: int) -> list[str]:
     return sorted(n for n in names if bits & int(getattr(enum, n)))
 
 
-def settings(model, scene: Scene) -> dict[str, object]:
+def parity_manifest(model, scene: Scene) -> dict[str, object]:
     """The parity manifest: every MuJoCo setting that affects the result, read from `model`."""
     opt = model.opt
     out: dict[str, object] = {
@@ -548,35 +432,17 @@ class MujocoEngine:
     integrators = INTEGRATORS
     default_integrator = "RK4"
     orders = ORDERS
-    missing = MISSING
+    missing = UNAVAILABLE
 
     def run(self, scene: Scene, integrator: str, dt: float, duration: float) -> Trajectory:
         if self.missing:
             raise RuntimeError(f"engine 'mujoco' unavailable: {self.missing}")
-        t0 = time.perf_counter()
-        model, data = build(scene, integrator, dt)
-        bodies = readback(model, data, scene)  # before stepping: rollout overwrites data
-        manifest = settings(model, scene)
-        setup_s = time.perf_counter() - t0
-        n_steps = scene.steps(dt, duration)
-        t0 = time.perf_counter()
-        steps, states = step_rollout(model, data, n_steps, scene.sample_stride(dt))
-        wall_s = time.perf_counter() - t0
-        meta = RunMeta(
-            case=scene.name,
-            engine=self.name,
-            integrator=integrator,
-            dt=dt,
-            steps=n_steps,
-            duration=n_steps * dt,
-            setup_s=setup_s,
-            wall_s=wall_s,
-            versions=package_versions("mujoco"),
-            settings=manifest,
-            bodies=bodies,
-        )
-        samples = samples_from_states(model, states, len(scene.bodies))
-        return Trajectory.from_samples(steps * dt, [b.name for b in scene.bodies], samples, meta)
-
-
-register(MujocoEngine())
+        timer = RunTimer(scene, self.name, integrator, dt, duration)
+        with timer.setup():
+            model, data = build(scene, integrator, dt)
+            bodies = readback(model, data, scene)  # before stepping: rollout overwrites data
+            manifest = parity_manifest(model, scene)
+        with timer.stepping():
+            steps, states = step_rollout(model, data, timer.n_steps, timer.stride)
+        meta = timer.meta(package_versions("mujoco"), manifest, bodies)
+        return timer.trajectory(steps, samples_from_states(model, states, len(scene.bodies)), meta)

@@ -1,115 +1,16 @@
 """PyBullet as an engine: one rigid body per particle cluster, stepped in DIRECT mode.
 
-Model (built from the scene alone, in a fresh DIRECT client per run, always disconnected):
+Each run builds its world in a fresh DIRECT client, always disconnected: per scene body a
+compound of sphere shapes with its base at the COM and its inertial frame on the principal axes
+(mass and inertia set in one `changeDynamics` call, damping 0, sleeping off); planes only when
+the scene has contact. The two integrators are Bullet's body types, "maximal" (btRigidBody) and
+"multibody" (Featherstone), both semi-implicit Euler. Bullet multiplies the two touching
+objects' restitution and friction, so every body and plane gets sqrt(e) and sqrt(mu). Every
+solver setting is set explicitly per run (`PybulletSettings`), the process-global ones
+(contactBreakingThreshold, jointFeedbackMode) included.
 
-* body: a compound of one GEOM_SPHERE per particle at its offset from the COM; the base frame
-  sits at the COM with identity orientation, and the inertial frame is rotated onto the principal
-  axes: I0 = P diag(d) P^T with P a proper rotation, baseInertialFrameOrientation = quat(P)
-  (PyBullet quaternions are (x, y, z, w)). Mass and localInertiaDiagonal = d are set in ONE
-  changeDynamics call: a later call with `mass` alone replaces the inertia by Bullet's
-  bounding-box estimate of the compound (checked: (11.5, 9.0, 5.1) instead of (26, 20, 10)
-  kg m^2 for tumbling_box). Linear and angular damping are set to 0 in the same call (defaults:
-  0.04 on multibodies, checked: a free sphere kept 0.924 of v and omega after 1 s; 0 on maximal
-  bodies), and sleeping is disabled. getDynamicsInfo does not report damping; the tests show it
-  is off by constant velocities in free flight.
-* planes (only when `scene.has_contact`): static GEOM_PLANE with planeNormal, mass 0.
-  Without contact: no planes, and every body gets collision group and mask 0, so nothing
-  collides (particles of one body never do: a compound is never tested against itself).
-* gravity: setGravity(scene.gravity), so zero gravity is (0, 0, 0).
-
-Integrators ("body types"; Bullet has one time stepper, semi-implicit Euler: velocities from
-forces and contact impulses first, then positions with the new velocities; the orientation is
-advanced by the exact exponential map of omega dt in both):
-
-* "maximal" (default): a btRigidBody (useMaximalCoordinates=True). Its gyroscopic term is
-  Bullet's default flag BT_ENABLE_GYROSCOPIC_FORCE_IMPLICIT_BODY: one Newton step of an implicit
-  Euler update of omega in body axes; it loses energy (tumbling_box: -5.0 % at dt 0.01,
-  -0.52 % at dt 0.001 over 10 s, |L| -2.5 % / -0.26 %).
-* "multibody": a btMultiBody with a floating base and no links (Featherstone). Its gyroscopic
-  term is explicit (omega x I omega added to the base bias force, m_useGyroTerm, on by default);
-  it gains energy (tumbling_box: +5.4 % / +0.52 %, |L| +2.7 % / +0.26 %).
-  The multibody constraint solver has no split impulse: penetration is removed by velocity
-  (Baumgarte, contactERP), which adds energy at every impact, see the rebound table.
-Neither gyroscopic term can be switched off: no changeDynamics or createMultiBody option
-exposes it. Both make the intermediate-axis
-flip of tumbling_box happen at the exact times (2.6 s and 9.4 s, at the 0.1 s sampling).
-The default is "maximal": identical in free flight to the accuracy that matters, and only its
-contacts reproduce the scene's restitution.
-
-Free flight against cases.exact (orientation error, max over the run):
-
-  case            dt     multibody   maximal
-  free_spin_cube  0.01   3e-15 rad   9e-14 rad
-  free_spin_cube  0.001  1e-14 rad   4e-13 rad
-  tumbling_box    0.01   19.9 deg    19.4 deg    (first order in dt)
-  tumbling_box    0.001  1.97 deg    1.96 deg
-
-State read back: getBasePositionAndOrientation/getBaseVelocity refer to the inertial frame:
-position = COM (checked), orientation = that of the principal frame, q_in(t) = q(t) quat(P)
-(checked at t = 0: it returns quat(P), not identity). The suite's orientation is therefore
-q(t) = q_in(t) q_in(0)^-1, the identity at t = 0 up to the product's rounding (~1e-17).
-Velocities are the COM velocity and the world angular velocity. The model recorded for the
-parity check is read back from PyBullet before stepping: mass and principal moments from
-getDynamicsInfo, the principal frame from the inertial-frame orientation at t = 0
-(getDynamicsInfo reports the local inertial orientation for multibodies but (0, 0, 0, 0) for
-maximal bodies), I = R_in diag(d) R_in^T, and x, v, omega from the getters.
-
-Stepping (timed as wall_s): one stepSimulation per step and, per sample and body,
-getBasePositionAndOrientation and getBaseVelocity, the least that returns x, q, v and omega
-(PyBullet has no batched getter for bases: getLinkStates covers links only). Both pass the
-client id by position: as a keyword it costs about 1 us more per call, 10 to 15 % of a free
-body's stepping. The samples are converted after the timed loop.
-
-Contact mapping (only when the scene has contact). Bullet combines the two objects'
-coefficients by product (btManifoldResult::calculateCombinedRestitution = r0 r1;
-calculateCombinedFriction = f0 f1, clamped to 10). Every body AND every plane gets sqrt(e) and
-sqrt(mu), so body-plane and body-body pairs both get e and mu. Rolling and spinning friction 0.
-Solver and contact settings are set explicitly every run (`PybulletSettings`, recorded in the
-run's settings):
-
-* contactBreakingThreshold 0.001 m. It is also the speculative margin of plane contacts: a
-  contact found while still apart targets the normal speed e v - gap / dt, which eats the bounce
-  (Bullet's default 0.02 m gave rebound 0.33 to 0.5 for e = 1 at dt 0.01 and below 0.01
-  at dt 0.001). With 1 mm
-  contacts are found on overlap, as in the reference simulator, and the bounce uses the true
-  approach speed. Sphere-sphere contacts are only generated on overlap whatever the threshold.
-* split impulse on for every penetrating contact (splitImpulsePenetrationThreshold 0; Bullet's
-  -0.04 corrects penetrations shallower than 4 cm by Baumgarte velocity, which added +0.2 to the
-  head-on rebound at dt 0.001). Penetration is removed by a position-only pseudo-velocity at
-  contactERP 0.2 per step: energy-neutral for maximal bodies (0.05 to 0.8 gave the same rebounds,
-  0.2 to 1 the same rest heights).
-* restitutionVelocityThreshold = 2 |g| dt, the reference simulator's rule: an approach slower than
-  two steps of gravity is a resting contact, not a bounce (0 without gravity).
-* numSolverIterations 50, solverResidualThreshold 1e-9, warmStartingFactor 0.85, globalCFM 0,
-  contactSlop 0, erp 0.2, frictionERP 0.2, enableConeFriction 1 (multibody: isotropic Coulomb
-  disc; without it a diagonal slide decelerated at sqrt(2) mu g; maximal bodies align the first
-  friction direction with the sliding velocity and decelerate at mu g either way).
-
-Measured rebound ratio (separating / approaching normal speed) for the seed cube landing flat on
-a floor (no gravity, 3 m/s; with gravity, dropped 0.8 m) and for the head-on impact of two cubes
-(tests/test_contact.py's scene, 1 m/s each, the ratio of final to initial speeds):
-
-  e                        0      0.5    1
-  maximal    dt 0.01       0      0.500  1.000   (all three scenes)
-  maximal    dt 0.001      0      0.500  1.000   (all three scenes)
-  multibody  dt 0.01       0.067  0.567  1.067   floor, no gravity
-                           0.100  0.612  1.125   floor, gravity
-                           0      0.500  1.000   head-on
-  multibody  dt 0.001      0.067  0.567  1.067   floor, no gravity
-                           0.100  0.601  1.102   floor, gravity
-                           0.200  0.700  1.200   head-on
-
-The multibody excess is Baumgarte's erp * penetration / dt and grows with contactERP (0.8 gave
-+0.27 to +0.8). dropped_cube (e = 0, mu = 0.5) rests on a face at COM height 0.700000 m (within
-1e-6) at dt 0.01 and 0.001 with either body type; sliding friction decelerates at mu g.
-
-Process-global state (checked in this PyBullet): contactBreakingThreshold is Bullet's global
-gContactBreakingThreshold; it survives disconnect and applies to every client in the process
-(a threshold set in one client made a sphere 0.1 m above a plane report a contact in the next
-fresh client). jointFeedbackMode is global too. Every run sets both, so no run leaks into the
-next; runs in concurrent threads would still share them. Per-world parameters start from
-Bullet's defaults in each new client (checked: numSolverIterations does not leak), and are set
-explicitly anyway.
+The mapping, its measured rebounds, the read-back frames and the process-global settings:
+docs/engines/pybullet.md.
 """
 
 from __future__ import annotations
@@ -119,15 +20,14 @@ import dataclasses
 import math
 import os
 import sys
-import time
 from contextlib import contextmanager
 
 import numpy as np
 
 from cases.scene import Scene
-from comparators.engine import register, sample_steps
+from comparators.harness import RunTimer, sample_steps
 from comparators.parity import body_readback
-from comparators.trajectory import RunMeta, Trajectory, package_versions
+from comparators.trajectory import Trajectory, package_versions
 from reference_sim.inertia import principal_frame
 from reference_sim.quaternion import quat_from_matrix, quat_to_matrix, quats_multiply
 
@@ -163,9 +63,9 @@ try:
         import pybullet as p
 except ImportError as exc:  # the module always imports; the engine reports why it cannot run
     p = None
-    MISSING: str | None = f"pybullet cannot be imported: {exc}"
+    UNAVAILABLE: str | None = f"pybullet cannot be imported: {exc}"
 else:
-    MISSING = None
+    UNAVAILABLE = None
 
 BODY_TYPES = {
     "maximal": "btRigidBody (useMaximalCoordinates)",
@@ -183,7 +83,7 @@ CONTACT_SOLVER = {
 
 @dataclasses.dataclass(frozen=True)
 class PybulletSettings:
-    """Every world parameter a run sets, explicitly, at its start (see the module docstring)."""
+    """Every world parameter a run sets, explicitly, at its start (docs/engines/pybullet.md)."""
 
     contact_breaking_threshold: float = 0.001  # m; process-global in Bullet
     num_solver_iterations: int = 50
@@ -298,77 +198,79 @@ def _add_plane(plane, maximal: bool, e: float, mu: float, cid: int) -> int:
     return uid
 
 
-def run_pybullet(
-    scene: Scene,
-    integrator: str,
-    dt: float,
-    duration: float,
-    settings: PybulletSettings = DEFAULT_SETTINGS,
-) -> Trajectory:
-    """Run `scene` in a fresh DIRECT client; `integrator` is "maximal" or "multibody"."""
-    if p is None:
-        raise RuntimeError(f"engine 'pybullet' is unavailable: {MISSING}")
-    if integrator not in BODY_TYPES:
-        raise ValueError(f"unknown integrator {integrator!r}: expected one of {tuple(BODY_TYPES)}")
+def build_world(scene: Scene, integrator: str, params: dict, cid: int) -> list[int]:
+    """Set the world parameters and gravity, then add the bodies (their ids, scene order) and,
+    with contact, the planes."""
     maximal = integrator == "maximal"
     contact = scene.has_contact
     e = scene.contact.restitution if contact else 0.0
     mu = scene.contact.friction if contact else 0.0
-    params = settings.engine_parameters(dt, scene.gravity)
-    n_steps = scene.steps(dt, duration)
-    sampled = sample_steps(n_steps, scene.sample_stride(dt))
+    p.setPhysicsEngineParameter(physicsClientId=cid, **params)
+    p.setGravity(*scene.gravity, physicsClientId=cid)
+    ids = [_add_body(b, maximal, contact, e, mu, cid) for b in scene.bodies]
+    if contact:
+        for plane in scene.planes:
+            _add_plane(plane, maximal, e, mu, cid)
+    return ids
 
-    start = time.perf_counter()
-    cid = connect()
-    try:
-        p.setPhysicsEngineParameter(physicsClientId=cid, **params)
-        p.setGravity(*scene.gravity, physicsClientId=cid)
-        ids = [_add_body(b, maximal, contact, e, mu, cid) for b in scene.bodies]
-        if contact:
-            for plane in scene.planes:
-                _add_plane(plane, maximal, e, mu, cid)
-        readback, inertia_frames, q0 = {}, {}, []
-        for body, uid in zip(scene.bodies, ids, strict=True):
-            info = p.getDynamicsInfo(uid, -1, physicsClientId=cid)
-            x, q_xyzw = p.getBasePositionAndOrientation(uid, physicsClientId=cid)
-            v, w = p.getBaseVelocity(uid, physicsClientId=cid)
-            q_in = np.array([q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2]])
-            rot = quat_to_matrix(q_in)
-            inertia = rot @ np.diag(info[2]) @ rot.T
-            readback[body.name] = body_readback(info[0], inertia, x, v, w)
-            inertia_frames[body.name] = {
-                "principal_moments": list(info[2]),
-                "principal_frame_wxyz": q_in.tolist(),
-            }
-            q0.append(q_in)
-        get_pose, get_velocity, step = (
-            p.getBasePositionAndOrientation,
-            p.getBaseVelocity,
-            p.stepSimulation,
-        )
-        raw = []
-        setup_s = time.perf_counter() - start
-        start = time.perf_counter()
-        done = 0
-        # client id by position: as a keyword it costs ~1 us per call (module docstring)
-        for k in sampled:
-            for _ in range(k - done):
-                step(cid)
-            done = k
-            raw.append([(get_pose(u, cid), get_velocity(u, cid)) for u in ids])
-        wall_s = time.perf_counter() - start
-    finally:
-        p.disconnect(cid)
 
+def read_back(scene: Scene, ids: list[int], cid: int) -> tuple[dict, dict, list[np.ndarray]]:
+    """The model as PyBullet holds it, before stepping: per body `RunMeta.bodies` entries, the
+    inertial frames (principal moments, principal frame (w, x, y, z)) for the settings, and the
+    inertial-frame orientations q_in(0) that map PyBullet's orientations to the suite's."""
+    bodies, inertia_frames, q0 = {}, {}, []
+    for body, uid in zip(scene.bodies, ids, strict=True):
+        info = p.getDynamicsInfo(uid, -1, physicsClientId=cid)
+        x, q_xyzw = p.getBasePositionAndOrientation(uid, physicsClientId=cid)
+        v, w = p.getBaseVelocity(uid, physicsClientId=cid)
+        q_in = np.array([q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2]])
+        rot = quat_to_matrix(q_in)
+        inertia = rot @ np.diag(info[2]) @ rot.T
+        bodies[body.name] = body_readback(info[0], inertia, x, v, w)
+        inertia_frames[body.name] = {
+            "principal_moments": list(info[2]),
+            "principal_frame_wxyz": q_in.tolist(),
+        }
+        q0.append(q_in)
+    return bodies, inertia_frames, q0
+
+
+def step_and_sample(cid: int, ids: list[int], sampled: np.ndarray) -> list[list[tuple]]:
+    """Step to each of the `sampled` step indices, recording (pose, velocity) of every body there,
+    as PyBullet returns them (the timed loop: nothing else happens in it)."""
+    get_pose, get_velocity, step = (
+        p.getBasePositionAndOrientation,
+        p.getBaseVelocity,
+        p.stepSimulation,
+    )
+    raw = []
+    done = 0
+    # client id by position: as a keyword it costs ~1 us per call (docs/engines/pybullet.md)
+    for k in sampled:
+        for _ in range(k - done):
+            step(cid)
+        done = k
+        raw.append([(get_pose(u, cid), get_velocity(u, cid)) for u in ids])
+    return raw
+
+
+def samples_from_raw(raw: list[list[tuple]], q0: list[np.ndarray]) -> np.ndarray:
+    """(S, B, 13) rows x, q, v, world omega from `step_and_sample`'s records; q is the suite's
+    orientation q_in(t) q_in(0)^-1 (identity at t = 0)."""
     samples = np.array(
         [[[*x, q[3], q[0], q[1], q[2], *v, *w] for (x, q), (v, w) in row] for row in raw],
         dtype=float,
-    ).reshape(len(raw), len(ids), 13)
+    ).reshape(len(raw), len(q0), 13)
     conj0 = np.array(q0) * np.array([1.0, -1.0, -1.0, -1.0])
     samples[:, :, 3:7] = quats_multiply(samples[:, :, 3:7], conj0[None, :, :])
+    return samples
 
-    contact_settings = (
-        {
+
+def parity_manifest(scene: Scene, integrator: str, params: dict, inertia_frames: dict) -> dict:
+    """The run's settings: every PyBullet setting that affects the result."""
+    if scene.has_contact:
+        e, mu = scene.contact.restitution, scene.contact.friction
+        contact_settings = {
             "restitution": e,
             "friction": mu,
             "restitution_per_object": math.sqrt(e),
@@ -380,35 +282,50 @@ def run_pybullet(
             "planes": len(scene.planes),
             "solver": CONTACT_SOLVER[integrator],
         }
-        if contact
-        else "none: no planes, collision group and mask 0 on every body"
-    )
-    meta = RunMeta(
-        case=scene.name,
-        engine="pybullet",
-        integrator=integrator,
-        dt=dt,
-        steps=n_steps,
-        duration=n_steps * dt,
-        setup_s=setup_s,
-        wall_s=wall_s,
-        versions=package_versions("pybullet"),
-        settings={
-            "body_type": BODY_TYPES[integrator],
-            "time_stepping": "semi-implicit Euler; orientation by exp(omega dt)",
-            "gyroscopic": GYROSCOPIC[integrator],
-            "gravity": list(scene.gravity),
-            "engine_parameters": params,
-            "linear_damping": 0.0,
-            "angular_damping": 0.0,
-            "sleeping": "disabled",
-            "contact": contact_settings,
-            "inertia": inertia_frames,
-        },
-        bodies=readback,
-    )
-    times = sampled * dt
-    return Trajectory.from_samples(times, [b.name for b in scene.bodies], samples, meta)
+    else:
+        contact_settings = "none: no planes, collision group and mask 0 on every body"
+    return {
+        "body_type": BODY_TYPES[integrator],
+        "time_stepping": "semi-implicit Euler; orientation by exp(omega dt)",
+        "gyroscopic": GYROSCOPIC[integrator],
+        "gravity": list(scene.gravity),
+        "engine_parameters": params,
+        "linear_damping": 0.0,
+        "angular_damping": 0.0,
+        "sleeping": "disabled",
+        "contact": contact_settings,
+        "inertia": inertia_frames,
+    }
+
+
+def run_pybullet(
+    scene: Scene,
+    integrator: str,
+    dt: float,
+    duration: float,
+    settings: PybulletSettings = DEFAULT_SETTINGS,
+) -> Trajectory:
+    """Run `scene` in a fresh DIRECT client; `integrator` is "maximal" or "multibody"."""
+    if p is None:
+        raise RuntimeError(f"engine 'pybullet' is unavailable: {UNAVAILABLE}")
+    if integrator not in BODY_TYPES:
+        raise ValueError(f"unknown integrator {integrator!r}: expected one of {tuple(BODY_TYPES)}")
+    params = settings.engine_parameters(dt, scene.gravity)
+    timer = RunTimer(scene, "pybullet", integrator, dt, duration)
+    sampled = sample_steps(timer.n_steps, timer.stride)
+    with timer.setup():
+        cid = connect()
+    try:
+        with timer.setup():
+            ids = build_world(scene, integrator, params, cid)
+            bodies, inertia_frames, q0 = read_back(scene, ids, cid)
+        with timer.stepping():
+            raw = step_and_sample(cid, ids, sampled)
+    finally:
+        p.disconnect(cid)
+    manifest = parity_manifest(scene, integrator, params, inertia_frames)
+    meta = timer.meta(package_versions("pybullet"), manifest, bodies)
+    return timer.trajectory(sampled, samples_from_raw(raw, q0), meta)
 
 
 class PybulletEngine:
@@ -416,10 +333,7 @@ class PybulletEngine:
     integrators = ("maximal", "multibody")
     default_integrator = "maximal"
     orders = {"maximal": 1, "multibody": 1}  # semi-implicit Euler, first-order gyroscopic terms
-    missing = MISSING
+    missing = UNAVAILABLE
 
     def run(self, scene: Scene, integrator: str, dt: float, duration: float) -> Trajectory:
         return run_pybullet(scene, integrator, dt, duration)
-
-
-register(PybulletEngine())

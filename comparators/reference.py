@@ -3,9 +3,9 @@
 import numpy as np
 
 from cases.scene import Scene
-from comparators.engine import register
+from comparators.harness import RunTimer
 from comparators.parity import body_readback
-from comparators.trajectory import RunMeta, Trajectory, package_versions
+from comparators.trajectory import Trajectory, package_versions
 from reference_sim.contact import (
     CYCLE_AGREEMENT,
     CYCLE_MAX_PERIOD,
@@ -53,6 +53,7 @@ class ReferenceEngine:
     missing = None
 
     def run(self, scene: Scene, integrator: str, dt: float, duration: float) -> Trajectory:
+        timer = RunTimer(scene, self.name, integrator, dt, duration)
         model = model_from_scene(scene)
         velocity = [b.velocity for b in scene.bodies]
         omega = [b.angular_velocity for b in scene.bodies]
@@ -63,8 +64,9 @@ class ReferenceEngine:
             state = seed_initial_state(model, positions, velocity, omega)
         else:
             state = scene_state
-        n_steps = scene.steps(dt, duration)
-        result = simulate(model, state, integrator, dt, n_steps, scene.sample_stride(dt))
+        result = simulate(model, state, integrator, dt, timer.n_steps, timer.stride)
+        # simulate times its compilation warm-up (setup) and its stepping itself
+        timer.add_times(setup_s=result.compile_s, wall_s=result.wall_s)
         bodies = {
             b.name: body_readback(
                 model.body_mass[k],
@@ -75,32 +77,20 @@ class ReferenceEngine:
             )
             for k, b in enumerate(scene.bodies)
         }
-        meta = RunMeta(
-            case=scene.name,
-            engine=self.name,
-            integrator=integrator,
-            dt=dt,
-            steps=n_steps,
-            duration=n_steps * dt,
-            setup_s=result.compile_s,
-            wall_s=result.wall_s,
-            versions=package_versions("numba"),
-            settings={
-                "integrator": integrator,
-                "timestep": dt,
-                "gravity": "on" if model.gravity_on else "off",
-                "restitution": model.restitution,
-                "friction": model.friction,
-                "inertia": "particle tensor, full 3 x 3",
-                **_contact_settings(scene, integrator, dt),
-            },
-            bodies=bodies,
-            solver=_solver_report(result.solver),
+        settings = {
+            "integrator": integrator,
+            "timestep": dt,
+            "gravity": "on" if model.gravity_on else "off",
+            "restitution": model.restitution,
+            "friction": model.friction,
+            "inertia": "particle tensor, full 3 x 3",
+            **_contact_settings(scene, integrator, dt),
+        }
+        meta = timer.meta(
+            package_versions("numba"), settings, bodies, _solver_report(result.solver)
         )
         extra = None if result.shape_error is None else {"shape_error": result.shape_error}
-        return Trajectory.from_samples(
-            result.steps * dt, [b.name for b in scene.bodies], result.samples, meta, extra
-        )
+        return timer.trajectory(result.steps, result.samples, meta, extra)
 
 
 def _contact_settings(scene: Scene, integrator: str, dt: float) -> dict:
@@ -162,6 +152,3 @@ def _solver_report(solver) -> dict[str, float]:
         "subspace_per_solve": subspace / solves,
         "extrapolations_per_solve": extrapolations / solves,
     }
-
-
-register(ReferenceEngine())

@@ -1,0 +1,106 @@
+"""What an engine adapter calls to run a scene the suite's way: `RunTimer` times model building
+apart from stepping and assembles the run's `RunMeta` and `Trajectory`; `sample_steps` gives the
+step indices every engine samples.
+
+An adapter's `Engine.run` follows this outline::
+
+    timer = RunTimer(scene, "my_engine", integrator, dt, duration)
+    with timer.setup():  # model building, compilation, the parity readback
+        model = build(scene, integrator, dt)
+        bodies = read_back(model)  # `comparators.parity.body_readback` per body, before stepping
+    with timer.stepping():  # stepping and recording samples, nothing else
+        states = step(model, sample_steps(timer.n_steps, timer.stride))
+    meta = timer.meta(package_versions("my_engine"), settings(model), bodies)
+    return timer.trajectory(steps, samples_from(states), meta)
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import numpy as np
+
+from cases.scene import Scene
+from comparators.trajectory import RunMeta, Trajectory
+
+
+def sample_steps(n_steps: int, stride: int) -> np.ndarray:
+    """The step indices every engine samples: 0, every `stride` steps, and the last one."""
+    steps = np.arange(0, n_steps + 1, stride)
+    return steps if steps[-1] == n_steps else np.append(steps, n_steps)
+
+
+class RunTimer:
+    """One run of `scene` on an engine: its step count and sampling, the time spent building
+    (`setup_s`: model building and compilation) and stepping (`wall_s`), and its `RunMeta`.
+
+    Attributes:
+      n_steps: steps of `dt` the run takes to cover `duration` (`Scene.steps`).
+      stride: steps between samples (`Scene.sample_stride`).
+      setup_s, wall_s: seconds spent in `setup()` and in `stepping()` blocks (summed).
+    """
+
+    def __init__(self, scene: Scene, engine: str, integrator: str, dt: float, duration: float):
+        self.scene, self.engine, self.integrator, self.dt = scene, engine, integrator, dt
+        self.n_steps = scene.steps(dt, duration)
+        self.stride = scene.sample_stride(dt)
+        self.setup_s = 0.0
+        self.wall_s = 0.0
+
+    @contextmanager
+    def setup(self) -> Iterator[None]:
+        """Time the block as model building (`setup_s`)."""
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.setup_s += time.perf_counter() - start
+
+    @contextmanager
+    def stepping(self) -> Iterator[None]:
+        """Time the block as stepping (`wall_s`)."""
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.wall_s += time.perf_counter() - start
+
+    def add_times(self, setup_s: float, wall_s: float) -> None:
+        """Add times an engine measured itself (the reference simulator times its compilation
+        warm-up and its stepping inside one call)."""
+        self.setup_s += setup_s
+        self.wall_s += wall_s
+
+    def meta(
+        self,
+        versions: dict[str, str],
+        settings: dict[str, object],
+        bodies: dict[str, dict],
+        solver: dict[str, float] | None = None,
+    ) -> RunMeta:
+        """The run's `RunMeta`: the times so far, the parity manifest `settings`, the model read
+        back from the engine before stepping (`bodies`) and the contact solver's report."""
+        return RunMeta(
+            case=self.scene.name,
+            engine=self.engine,
+            integrator=self.integrator,
+            dt=self.dt,
+            steps=self.n_steps,
+            duration=self.n_steps * self.dt,
+            setup_s=self.setup_s,
+            wall_s=self.wall_s,
+            versions=versions,
+            settings=settings,
+            bodies=bodies,
+            solver=solver or {},
+        )
+
+    def trajectory(
+        self, steps: np.ndarray, samples: np.ndarray, meta: RunMeta, extra: dict | None = None
+    ) -> Trajectory:
+        """The trajectory table from the sampled step indices (S,) and the samples (S, B, 13)
+        in `comparators.trajectory.STATE` order, per body in scene order; t = step * dt."""
+        names = [b.name for b in self.scene.bodies]
+        return Trajectory.from_samples(steps * self.dt, names, samples, meta, extra)
