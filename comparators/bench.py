@@ -3,11 +3,12 @@
 `bench` measures steps/s through `comparators.engine.run`, the path the report takes (model
 built from the scene, trajectory recorded at the scene's sample interval, stepping timed apart
 from model building as `wall_s`). Per case and dt, every engine/integrator runs once as warm-up
-(its `setup_s` is reported, its trajectory gives the verdict), then REPEATS timed repeats go
-round-robin over the engines/integrators, each round starting one further along, so that
-machine load during the bench falls on all of them alike. steps/s is the median over the
-repeats of steps / wall_s, with the min and max beside it. Each run simulates the case's
-duration capped at BENCH_DURATION_S (10 s: 1000 steps at dt 0.01), or a given duration.
+(its `setup_s` is reported, its trajectory gives the verdict), then BENCH_REPEATS timed repeats
+go round-robin over the engines/integrators, each round starting one further along, so that
+machine load during the bench falls on all of them alike (`comparators.timing`). steps/s is
+the median over the repeats of steps / wall_s, with the min and max beside it. Each run
+simulates the case's duration capped at BENCH_DURATION_S (10 s: 1000 steps at dt 0.01), or a
+given duration.
 
 `throughput_from_results` makes the same table from a sweep's results (`comparators.sweep`),
 for the report.
@@ -25,9 +26,9 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from cases.errors import InputError
 from cases.scene import Scene
-from comparators.engine import ENGINES, failure_reason, get_engine, run
+from comparators.engine import ENGINES, get_engine
 from comparators.outcomes import verdict
-from comparators.trajectory import Trajectory
+from comparators.timing import BENCH_REPEATS, MIN_REPEATS, attempt_run, interleaved, spread
 
 BENCH_COLUMNS = [
     "case",
@@ -46,14 +47,9 @@ BENCH_COLUMNS = [
 ]
 # Every steps/s is compared with MuJoCo's Euler at the same case and dt.
 BASELINE = ("mujoco", "Euler")
-# The architecture's timing rule: a median with min and max needs at least this many repeats.
-MIN_REPEATS = 5
-REPEATS = MIN_REPEATS
 # Simulated seconds per run at most (unless a duration is given): 1000 steps at dt 0.01, so
 # every run takes enough steps to time and the long cases (seed_cube's 100 s) no more than the
-# others. Measured: the slowest runs (the reference's contact solver at 6e3 to 1e4 steps/s,
-# e.g. bounce_e0.8's 6000 steps at dt 0.001) take about 1 s, a free body on MuJoCo about 1 ms,
-# and the whole catalog (180 rows, 5 repeats) 2.5 minutes on this shared 2-core machine.
+# others; what that costs: docs/engines/measurement.md.
 BENCH_DURATION_S = 10.0
 
 
@@ -111,16 +107,13 @@ def plan_bench(
     return blocks
 
 
-def _attempt(spec: BenchRun) -> tuple[Trajectory | None, str | None]:
-    """Run `spec`: the trajectory, or None and why it failed (never raises)."""
-    try:
-        traj = run(spec.scene, spec.engine, spec.integrator, dt=spec.dt, duration=spec.duration)
-        return traj, None
-    except Exception as exc:  # noqa: BLE001  (reported in the table, never raised)
-        return None, failure_reason(exc)
+def _attempt(spec: BenchRun):
+    """`comparators.timing.attempt_run` of `spec`: (trajectory, None) or (None, reason)."""
+    return attempt_run(spec.scene, spec.engine, spec.integrator, spec.dt, spec.duration)
 
 
-def _row(spec: BenchRun) -> dict:
+def _empty_bench_row(spec: BenchRun) -> dict:
+    """The table row of `spec` before any run: NaN throughout, no repeats."""
     row = dict.fromkeys(BENCH_COLUMNS, np.nan)
     row.update(
         case=spec.scene.name,
@@ -142,7 +135,7 @@ def bench(
     engines: list[str],
     dts: Iterable[float] | None = None,
     duration: float | None = None,
-    repeats: int = REPEATS,
+    repeats: int = BENCH_REPEATS,
     progress: bool = True,
 ) -> pd.DataFrame:
     """Steps/s of every scene x engine x integrator x dt, one row each, columns BENCH_COLUMNS.
@@ -180,8 +173,37 @@ def bench(
 
 def _bench_block(block: list[BenchRun], repeats: int, advance) -> list[dict]:
     """One case and dt: warm-ups, then `repeats` rotated rounds; one row per spec."""
-    rows = [_row(spec) for spec in block]
-    walls: list[list[float]] = [[] for _ in block]
+    rows = [_empty_bench_row(spec) for spec in block]
+    timed = _warm_up_block(block, rows, advance)
+    for _ in range((len(block) - len(timed)) * repeats):
+        advance("skipped")
+    walls: dict[int, list[float]] = {k: [] for k in timed}
+    for _, k in interleaved(timed, repeats, rotate=True):
+        if rows[k]["verdict"].startswith("failed"):
+            advance(block[k].label)
+            continue
+        traj, error = _attempt(block[k])
+        advance(block[k].label)
+        if traj is None:
+            rows[k]["verdict"] = f"failed: {error}"
+        else:
+            walls[k].append(traj.meta.wall_s)
+    for k in timed:
+        if rows[k]["verdict"].startswith("failed"):
+            continue
+        rates = spread(rows[k]["steps"] / np.asarray(walls[k]))
+        rows[k].update(
+            repeats=rates.count,
+            steps_per_s=rates.median,
+            steps_per_s_min=rates.least,
+            steps_per_s_max=rates.largest,
+        )
+    return rows
+
+
+def _warm_up_block(block: list[BenchRun], rows: list[dict], advance) -> list[int]:
+    """Run every spec of `block` once: its steps, setup_s and verdict into `rows`; the indices
+    of the specs whose run is timed (a verdict in TIMED_VERDICTS)."""
     timed = []
     for k, spec in enumerate(block):
         traj, error = _attempt(spec)
@@ -193,33 +215,7 @@ def _bench_block(block: list[BenchRun], repeats: int, advance) -> list[dict]:
         rows[k]["verdict"] = verdict(traj, spec.scene)
         if rows[k]["verdict"] in TIMED_VERDICTS:
             timed.append(k)
-    skipped = (len(block) - len(timed)) * repeats
-    if skipped:
-        for _ in range(skipped):
-            advance("skipped")
-    for round_ in range(repeats):
-        shift = round_ % max(1, len(timed))
-        for k in timed[shift:] + timed[:shift]:
-            if rows[k]["verdict"].startswith("failed"):
-                advance(block[k].label)
-                continue
-            traj, error = _attempt(block[k])
-            advance(block[k].label)
-            if traj is None:
-                rows[k]["verdict"] = f"failed: {error}"
-            else:
-                walls[k].append(traj.meta.wall_s)
-    for k in timed:
-        if rows[k]["verdict"].startswith("failed"):
-            continue
-        rates = rows[k]["steps"] / np.asarray(walls[k])
-        rows[k].update(
-            repeats=len(rates),
-            steps_per_s=float(np.median(rates)),
-            steps_per_s_min=float(rates.min()),
-            steps_per_s_max=float(rates.max()),
-        )
-    return rows
+    return timed
 
 
 def with_ratio(table: pd.DataFrame) -> pd.DataFrame:

@@ -2,6 +2,9 @@
 quantities physics predicts in closed form (rebound ratio, apex heights, stopping distance and
 time, slope acceleration, rest, momentum, flip period).
 
+Longer than most modules: the verdict and every measurement read one `RunData`, whose arrays
+are computed once per run.
+
 Everything here reads the trajectory table (COM position and velocity, orientation, angular
 velocity per sample; `comparators.trajectory`) and the scene, never an engine's internals, so
 every engine is measured the same way. What is measured is decided by what the scene states (its
@@ -40,22 +43,14 @@ OUTCOME_COLUMNS = ["quantity", "measured", "expected", "error", "unit"]
 VERDICTS = ("ok", "diverged", "tunnelled", "jitter")  # besides "failed: <reason>" (no run)
 
 # Energy growth past which a run has diverged, relative to `energy_scale`: an order of magnitude,
-# a blow-up rather than an error. Nominally correct integrators stay far below it (reference
-# euler 0.28 on tumbling_box at dt 0.02; MuJoCo Euler and PyBullet multibody at most 2.1, over the
-# 100 s of tumbling_box_long at twice its dt); a rigid integrator that keeps L exact cannot exceed
-# L^2 / (2 I_min), where the reference euler saturates on tumbling_box_long (growth 0.999 at dt
-# 0.01, 1.0003 at 0.02), so a bound of 1 would split that one state by rounding. Past 10: the
-# seed's inflating rotation update (36 on tumbling_box at dt 0.02, 1e7 on tumbling_box_long, 1e193
-# on high_spin) and whatever else blows up before it reaches inf or NaN.
+# a blow-up rather than an error; correct integrators stay far below it (figures behind this and
+# the next thresholds: docs/engines/measurement.md).
 ENERGY_GROWTH_LIMIT = 10.0
 # A body that should rest "jitters" when some particle still moves faster than this in the final
-# window. It is metrics.REST_SPEED, the suite's definition of rest: 1 mm/s is far below the motion
-# of any case and 150 times the largest resting speed of any engine on dropped_cube (PyBullet,
-# 6e-6 m/s; MuJoCo 1e-10, the reference 3e-14).
+# window: metrics.REST_SPEED, the suite's definition of rest, far above any engine's resting noise.
 JITTER_SPEED = REST_SPEED
 # The final window, where a body that should rest must be resting: the last quarter of the run,
-# at most 10 s. Cases give their bodies most of the run to settle (dropped_cube rests after 2.0
-# to 2.9 s of its 5 s in every engine); 10 s is the jitter window of a 60 s rest.
+# at most 10 s. Cases give their bodies most of the run to settle; 10 s covers a 60 s rest.
 FINAL_FRACTION = 0.25
 FINAL_WINDOW_S = 10.0
 # Relative change of inter-particle distances (`shape_error`) below which a sample's rigid

@@ -19,9 +19,16 @@ import numpy as np
 import pandas as pd
 
 from cases.catalog import cube_rain
-from comparators.engine import ENGINES, run
+from comparators.engine import ENGINES
 from comparators.outcomes import verdict
-from comparators.sweep import REPEAT_BELOW_S
+from comparators.timing import (
+    LONG_RUN_S,
+    SCALING_REPEATS,
+    attempt_run,
+    interleaved,
+    spread,
+    wants_another_timing,
+)
 
 # Cube counts. Full: half-decade steps from 1 to the family's largest N. Quick: decades to 100.
 FULL_COUNTS = (1, 3, 10, 30, 100, 300, 1000)
@@ -37,18 +44,14 @@ WHOLE_STEPS = 100
 FULL_WINDOWS = (FALL_STEPS, WHOLE_STEPS)
 QUICK_WINDOWS = (FALL_STEPS,)
 WARM_UP_STEPS = 1  # enough to load an engine's compiled code and libraries before timing
-# Runs of a few milliseconds vary by up to 3x between repeats on the shared 2-core machine
-# (PyBullet cube_rain_10 over 10 steps: 2.1 to 7.3 ms); the median of 5 ignores two outliers.
-REPEATS = 5
 # Cost per body-step has stopped being flat at the first N where it exceeds this factor times
 # its smallest value over the smaller N (the plateau). The smallest value, not the first: a
 # fixed cost per step divided among few bodies makes the smallest N dearest per body. 2: the
 # fastest repeats still differ by tens of percent between runs of the measurement, so smaller
 # factors would flag noise, and a doubled cost per body means the part growing faster than N
 # has caught up with the linear part. The rule reads the fastest repeat (`wall_min_s`), not the
-# median: other processes only ever add time, and under a load of 2 to 3 on the 2 cores a burst
-# during the repeats of one N moved its median by up to 10x (MuJoCo cube_rain_10, 10 steps:
-# 1.3 to 13.5 ms), enough to end a plateau on its own.
+# median: other processes only ever add time, and a burst of load during the repeats of one N
+# can move its median by up to 10x (docs/engines/measurement.md), enough to end a plateau.
 PLATEAU_FACTOR = 2.0
 
 SCALING_COLUMNS = [
@@ -87,19 +90,16 @@ def _pairs(engines: Sequence[str], all_integrators: bool) -> list[tuple[str, str
     return pairs
 
 
-def _timed(scene, engine: str, integrator: str, steps: int):
-    """(trajectory, None) or (None, reason): one run of `steps` steps; never raises."""
-    try:
-        return run(scene, engine, integrator, dt=scene.dt, duration=steps * scene.dt), None
-    except Exception as exc:  # noqa: BLE001  (reported in the table, never raised)
-        return None, f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
+def _attempt_window(scene, engine: str, integrator: str, steps: int):
+    """`comparators.timing.attempt_run` of `steps` steps from t = 0 at the scene's dt."""
+    return attempt_run(scene, engine, integrator, scene.dt, steps * scene.dt)
 
 
 def measure_scaling(
     counts: Sequence[int] = FULL_COUNTS,
     engines: Sequence[str] | None = None,
     windows: Sequence[int] = FULL_WINDOWS,
-    repeats: int = REPEATS,
+    repeats: int = SCALING_REPEATS,
     all_integrators: bool = False,
     progress: Callable[[str], None] | None = None,
 ) -> pd.DataFrame:
@@ -108,7 +108,7 @@ def measure_scaling(
 
     `engines` defaults to every available one; each runs its default integrator, or all of
     them with `all_integrators`. Each window is a number of steps from t = 0 at the scene's
-    dt. A run is repeated up to `repeats` times while one run takes under REPEAT_BELOW_S
+    dt. A run is repeated up to `repeats` times while one run takes under LONG_RUN_S
     (longer runs average scheduler noise within themselves); each repeat runs every engine once,
     so machine load falls on all of them alike. The verdict is that of the first repeat's
     trajectory. `progress` is called with a label before every run.
@@ -119,34 +119,42 @@ def measure_scaling(
     smallest = cube_rain(min(counts))
     for engine, integrator in pairs:  # loads compiled code and libraries; nothing is kept
         report(f"warm-up {engine} {integrator}")
-        _timed(smallest, engine, integrator, WARM_UP_STEPS)
+        _attempt_window(smallest, engine, integrator, WARM_UP_STEPS)
     rows = []
     for steps in windows:
         for n in counts:
-            scene = cube_rain(n)
-            walls: dict[tuple, list[float]] = {pair: [] for pair in pairs}
-            setups: dict[tuple, list[float]] = {pair: [] for pair in pairs}
-            verdicts: dict[tuple, str] = {}
-            for repeat in range(repeats):
-                for pair in pairs:
-                    done = walls[pair]
-                    if pair in verdicts and (verdicts[pair] != "ok" or done[0] >= REPEAT_BELOW_S):
-                        continue
-                    report(f"{scene.name}, {steps} steps, {pair[0]} {pair[1]}, run {repeat + 1}")
-                    traj, error = _timed(scene, *pair, steps)
-                    if traj is None:
-                        verdicts[pair] = f"failed: {error}"
-                        continue
-                    if pair not in verdicts:
-                        verdicts[pair] = verdict(traj, scene)
-                    done.append(traj.meta.wall_s)
-                    setups[pair].append(traj.meta.setup_s)
-            for pair in pairs:
-                rows.append(_row(scene, pair, steps, walls[pair], setups[pair], verdicts[pair]))
+            rows += _measure_count(cube_rain(n), pairs, steps, repeats, report)
     return pd.DataFrame(rows, columns=SCALING_COLUMNS)
 
 
-def _row(scene, pair, steps, walls, setups, outcome) -> dict:
+def _measure_count(scene, pairs, steps: int, repeats: int, report) -> list[dict]:
+    """One scene and window: every (engine, integrator) pair timed in interleaved rounds; one
+    row per pair."""
+    walls: dict[tuple, list[float]] = {pair: [] for pair in pairs}
+    setups: dict[tuple, list[float]] = {pair: [] for pair in pairs}
+    verdicts: dict[tuple, str] = {}
+    for repeat, pair in interleaved(pairs, repeats, rotate=False):
+        if pair in verdicts and (
+            verdicts[pair] != "ok" or not wants_another_timing(walls[pair], repeats, LONG_RUN_S)
+        ):
+            continue
+        report(f"{scene.name}, {steps} steps, {pair[0]} {pair[1]}, run {repeat + 1}")
+        traj, error = _attempt_window(scene, *pair, steps)
+        if traj is None:
+            verdicts[pair] = f"failed: {error}"
+            continue
+        if pair not in verdicts:
+            verdicts[pair] = verdict(traj, scene)
+        walls[pair].append(traj.meta.wall_s)
+        setups[pair].append(traj.meta.setup_s)
+    return [
+        _scaling_row(scene, pair, steps, walls[pair], setups[pair], verdicts[pair])
+        for pair in pairs
+    ]
+
+
+def _scaling_row(scene, pair, steps, walls, setups, outcome) -> dict:
+    """The table row of one pair at one N and window, timed only when its runs were valid."""
     n = len(scene.bodies)
     row = dict.fromkeys(SCALING_COLUMNS, np.nan)
     row.update(
@@ -160,15 +168,15 @@ def _row(scene, pair, steps, walls, setups, outcome) -> dict:
         verdict=outcome,
     )
     if setups:
-        row["setup_s"] = float(np.median(setups))
+        row["setup_s"] = spread(setups).median
     if outcome == "ok":  # only valid runs are timed
-        wall = float(np.median(walls))
+        wall = spread(walls)
         row.update(
-            wall_s=wall,
-            wall_min_s=min(walls),
-            wall_max_s=max(walls),
-            cost_per_step_s=wall / steps,
-            cost_per_body_step_s=wall / (steps * n),
+            wall_s=wall.median,
+            wall_min_s=wall.least,
+            wall_max_s=wall.largest,
+            cost_per_step_s=wall.median / steps,
+            cost_per_body_step_s=wall.median / (steps * n),
         )
     return row
 

@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 from scipy.spatial import cKDTree
 
-import comparators.scaling as scaling
+import comparators.timing as timing
 from cases import CATALOG, InputError, resolve_case
 from cases.catalog import CUBE_RAIN_LAYERS, CUBE_RAIN_MAX, CUBE_RAIN_PITCH, cube_rain
 from comparators import ENGINES
@@ -115,14 +115,14 @@ def test_one_row_per_engine_and_n_with_a_finite_cost(table):
 
 
 def test_a_failing_run_is_a_row_not_an_exception(monkeypatch):
-    real_run = scaling.run
+    real_run = timing.run  # every measurement's runs go through comparators.timing
 
     def flaky(scene, engine, *args, **kwargs):
         if len(scene.bodies) == 2 and engine == "reference":
             raise RuntimeError("boom\nsecond line")
         return real_run(scene, engine, *args, **kwargs)
 
-    monkeypatch.setattr(scaling, "run", flaky)
+    monkeypatch.setattr(timing, "run", flaky)
     table = measure_scaling(COUNTS, engines=["reference"], windows=(STEPS,), repeats=1)
     failed = table.set_index("n_bodies").loc[2]
     assert failed["verdict"] == "failed: RuntimeError: boom" and failed["repeats"] == 0
