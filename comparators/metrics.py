@@ -15,7 +15,6 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from cases.exact import exact_states, exact_trajectory_available
 from cases.scene import Scene
 from comparators.trajectory import ANGULAR_VELOCITY, POSITION, QUATERNION, VELOCITY, Trajectory
 from reference_sim.quaternion import quats_angle_between, quats_to_matrices
@@ -192,50 +191,3 @@ def rest(traj: Trajectory, scene: Scene, body: str, window: float = REST_WINDOW)
         "max_speed": float(speed[in_window].max()),
         "max_angular_speed": float(spin[in_window].max()),
     }
-
-
-def summarize(traj: Trajectory, scene: Scene) -> dict[str, float | str | bool]:
-    """One run's headline numbers: speed, drifts, pose error against the exact solution where
-    the scene has one (largest over the run, and the orientation error at the end), largest
-    shape error (deforming engines), rest (where the scene predicts a rest height) and the
-    verdict (`comparators.outcomes.verdict`: ok, diverged, tunnelled or jitter)."""
-    m = traj.meta
-    out: dict[str, float | str | bool] = {
-        "case": m.case,
-        "engine": m.engine,
-        "integrator": m.integrator,
-        "dt": m.dt,
-        "steps": m.steps,
-        "setup_s": m.setup_s,
-        "wall_s": m.wall_s,
-        "steps_per_s": m.steps_per_s,
-        "realtime_factor": m.duration / m.wall_s if m.wall_s > 0 else float("inf"),
-        "solver_sweeps": m.solver.get("sweeps_per_solve", np.nan),
-        "solver_at_limit": m.solver.get("at_limit", np.nan),
-        "solver_subspace": m.solver.get("subspace_per_solve", np.nan),
-        "solver_extrapolations": m.solver.get("extrapolations_per_solve", np.nan),
-    }
-    with np.errstate(over="ignore", invalid="ignore"):  # a blown-up run's drifts are inf
-        out.update(drifts(traj, scene))
-    if exact_trajectory_available(scene):
-        times = body_arrays(traj, scene.bodies[0].name)["t"]
-        errors = pose_errors(traj, exact_states(scene, times), scene)
-        out["reference"] = "exact"
-        out["position_error"] = float(errors["position_error"].max())
-        out["orientation_error_deg"] = float(errors["orientation_error_deg"].max())
-        final = errors[errors["t"] == errors["t"].max()]
-        out["final_orientation_error_deg"] = float(final["orientation_error_deg"].max())
-    if "shape_error" in traj.table:
-        out["shape_error"] = float(traj.table["shape_error"].max())
-    if scene.expected is not None and scene.expected.rest_com_height is not None:
-        for body in scene.bodies:
-            r = rest(traj, scene, body.name)
-            prefix = "" if len(scene.bodies) == 1 else f"{body.name}."
-            out[prefix + "at_rest"] = r["at_rest"]
-            out[prefix + "rest_com_height"] = r["com_height"]
-            out[prefix + "rest_height_error"] = r["com_height"] - scene.expected.rest_com_height
-    # outcomes builds on this module's helpers, so it is imported here, not at the top
-    from comparators.outcomes import verdict
-
-    out["verdict"] = verdict(traj, scene)
-    return out

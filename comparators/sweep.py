@@ -37,9 +37,11 @@ from cases.errors import InputError
 from cases.exact import exact_trajectory_available
 from cases.scene import Scene
 from comparators.cache import ResultsCache, code_version, run_key
-from comparators.engine import ENGINES, failure_reason, run
-from comparators.metrics import pose_errors_between, summarize
+from comparators.engine import ENGINES
+from comparators.metrics import pose_errors_between
 from comparators.outcomes import OUTCOME_COLUMNS, outcomes
+from comparators.summary import summarize
+from comparators.timing import SWEEP_REPEATS, attempt_run, repeat_run, spread
 from comparators.trajectory import Trajectory, package_versions
 from reference_sim.simulate import COMPILE_GROUPS, COMPILE_STAGES, compile_stage, compile_stages
 
@@ -120,21 +122,17 @@ class SweepResult:
 # dt sweeps as multiples of each case's default dt. Full: two octaves coarser and four finer
 # reach the asymptotic range of every integrator on the exact cases. Quick: three points, the
 # fewest a convergence fit can use; the hard cases (tag "hard": long runs, small default dt) and
-# cases simulating more than QUICK_LONG_S (seed_cube's 100 s alone was 60% of the quick sweep)
-# only at their default dt, to keep `rigidbench report --quick` within its 2-minute budget.
+# cases simulating more than QUICK_LONG_S only at their default dt, to keep
+# `rigidbench report --quick` within its 2-minute budget (docs/engines/measurement.md).
 FULL_DT_FACTORS = (2.0, 1.0, 0.5, 0.25, 0.125, 0.0625)
 QUICK_DT_FACTORS = (2.0, 1.0, 0.5)
 QUICK_HARD_DT_FACTORS = (1.0,)
 QUICK_LONG_S = 20.0
-# ... and timed once: the quick report shows their verdicts and outcomes, and repeating their
-# 0.2 to 1 s runs three times for the timing median would cost it ~20 s (the full report and
-# every other case keep REPEATS).
+# ... and timed once: the quick report shows their verdicts and outcomes, and their runs of up
+# to a second are not worth repeating for a timing median there (the full report and every
+# other case keep SWEEP_REPEATS).
 QUICK_HARD_REPEATS = 1
 HARD_TAG = "hard"
-# Timing: a run is repeated until it has REPEATS timings, but only while one run takes less
-# than REPEAT_BELOW_S: longer runs average out scheduler noise within themselves.
-REPEATS = 3
-REPEAT_BELOW_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -145,7 +143,7 @@ class RunSpec:
     engine: str
     integrator: str
     dt: float
-    repeats: int = REPEATS
+    repeats: int = SWEEP_REPEATS
 
     @property
     def label(self) -> str:
@@ -156,7 +154,7 @@ def plan(
     scenes: list[Scene],
     engines: list[str],
     quick: bool = False,
-    repeats: int = REPEATS,
+    repeats: int = SWEEP_REPEATS,
     dt_factors: tuple[float, ...] | None = None,
 ) -> list[RunSpec]:
     """The runs of the matrix, ordered so that consecutive runs cycle through the engines:
@@ -200,21 +198,20 @@ def plan(
 
 
 def execute(spec: RunSpec) -> tuple[Trajectory | None, str | None, tuple | None]:
-    """Run `spec` (repeating it for timing) in whatever process the executor chose.
+    """Run `spec` (repeated for timing as `comparators.timing` says) in whatever process the
+    executor chose.
 
     Returns the trajectory, with wall_s the median stepping time and wall_runs every timing,
     no error and its `analyse`, computed here so that workers share the work; or None, the
     reason it failed and None: an exception never escapes, so one bad run cannot stop a sweep.
     """
-    try:
-        traj = run(spec.scene, spec.engine, spec.integrator, dt=spec.dt)
-        walls = [traj.meta.wall_s]
-        while len(walls) < spec.repeats and traj.meta.wall_s < REPEAT_BELOW_S:
-            walls.append(run(spec.scene, spec.engine, spec.integrator, dt=spec.dt).meta.wall_s)
-        meta = dataclasses.replace(traj.meta, wall_s=float(np.median(walls)), wall_runs=walls)
-        traj = Trajectory(traj.table, meta)
-    except Exception as exc:  # noqa: BLE001  (reported in the results, never raised)
-        return None, failure_reason(exc), None
+    traj, error, walls = repeat_run(
+        lambda: attempt_run(spec.scene, spec.engine, spec.integrator, spec.dt), spec.repeats
+    )
+    if error is not None:
+        return None, error, None
+    meta = dataclasses.replace(traj.meta, wall_s=spread(walls).median, wall_runs=walls)
+    traj = Trajectory(traj.table, meta)
     return traj, None, analyse(spec, traj)
 
 
@@ -391,12 +388,12 @@ def _results(specs, keys, trajectories, analyses, failures):
         summary, run_measured = analyses.get(spec) or analyse(spec, traj)
         measured.append(run_measured)
         row.update({k: v for k, v in summary.items() if k in row and k != "key"})
-        walls = traj.meta.wall_runs or [traj.meta.wall_s]
+        walls = spread(traj.meta.wall_runs or [traj.meta.wall_s])
         row.update(
             duration=traj.meta.duration,
-            repeats=len(walls),
-            wall_min_s=min(walls),
-            wall_max_s=max(walls),
+            repeats=walls.count,
+            wall_min_s=walls.least,
+            wall_max_s=walls.largest,
             engine_version=_engine_version(traj),
         )
         if not exact_trajectory_available(spec.scene):

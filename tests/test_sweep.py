@@ -8,7 +8,7 @@ import pytest
 from cases import CATALOG
 from comparators.cache import ResultsCache
 from comparators.engine import ENGINES
-from comparators.metrics import summarize
+from comparators.summary import summarize
 from comparators.sweep import (
     OUTCOMES_COLUMNS,
     QUICK_DT_FACTORS,
