@@ -14,9 +14,9 @@ import pytest
 from cases import CATALOG
 from comparators import ENGINES, run
 from comparators.bench import BENCH_COLUMNS, throughput_from_results
-from comparators.metrics import summarize
 from comparators.outcomes import outcomes
 from comparators.scaling import SCALING_COLUMNS
+from comparators.summary import summarize
 from comparators.sweep import OUTCOMES_COLUMNS, RESULT_COLUMNS, SweepResult
 from reports.convergence import (
     ERROR_CEILING_DEG,
@@ -27,7 +27,9 @@ from reports.convergence import (
     lowest_front,
     pareto_front,
 )
-from reports.report import _pareto_sentence, expected_orders, missing_references, write_report
+from reports.html_page import missing_references
+from reports.report import expected_orders, write_report
+from reports.sections.case import pareto_sentence
 
 SCENE = dataclasses.replace(CATALOG["tumbling_box"], duration=2.0)
 DTS = (0.02, 0.01, 0.005, 0.0025)
@@ -205,7 +207,7 @@ def test_pareto_sentence_names_the_ties():
     runs = FRONT_RUNS.rename(columns={"error": "orientation_error_deg"}).assign(
         verdict="ok", duration=1.0, wall_s=FRONT_RUNS["cost"]
     )
-    sentence = _pareto_sentence(runs)
+    sentence = pareto_sentence(runs)
     assert "**reference**" in sentence
     assert "at 3 of 4 time budgets, 1 of them tied with mujoco" in sentence
 

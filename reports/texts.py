@@ -1,0 +1,191 @@
+"""The report's prose: each section's "How to read" paragraph and notes, each written once.
+
+Texts that depend on the run (repeats, the baseline pair, scaling windows) are functions of it;
+the others are constants, with the thresholds they quote read from where those are defined.
+"""
+
+from __future__ import annotations
+
+from comparators.outcomes import ENERGY_GROWTH_LIMIT, FINAL_FRACTION, FINAL_WINDOW_S, JITTER_SPEED
+from comparators.scaling import PLATEAU_FACTOR
+from reports.convergence import ERROR_CEILING_DEG, ERROR_FLOOR_DEG, MIN_FIT_POINTS, POSITION_FLOOR_M
+from reports.tables import EMPTY_CELL
+
+
+def contents(scaling: bool) -> str:
+    """The list of sections under the report's title."""
+    scaled = ("scaling with the number of bodies; ", ", `scaling.csv` (one row per scaling run)")
+    scaled = scaled if scaling else ("", "")
+    return (
+        "Sections: how the timings were measured; throughput; the catalog; per case its "
+        "metrics, drift over "
+        "time, convergence in dt, work-precision, stability map and measured outcomes; the "
+        "largest stable dt; contact validation against closed forms; cost to reach a tolerance; "
+        f"{scaled[0]}the parity manifest; machine and versions. All numbers are in `results.csv` "
+        f"(one row per run){scaled[1]} and `outcomes.csv` (one row per run and measured "
+        "quantity)."
+    )
+
+
+def timing(repeats: str) -> str:
+    """How the timings were measured; `repeats` is the number of repeats (or "3 to 5")."""
+    return (
+        "Times are stepping only (`wall_s`): building the engine's model and JIT compilation "
+        "are timed apart as `setup_s` (below). Each `wall_s` is the median of "
+        f"{repeats} repeat(s) (min and max in `results.csv` as `wall_min_s`, `wall_max_s`), "
+        "engines are interleaved so that machine load falls on all of them alike, and only "
+        "valid runs (finite, not diverged) are timed. steps/s = steps / `wall_s`; realtime "
+        "factor = simulated seconds per stepping second (above 1 is faster than real time)."
+    )
+
+
+def throughput(engine: str, integrator: str) -> str:
+    """The throughput table and figure, ratios to the baseline `engine` `integrator`."""
+    return (
+        "How to read: per case at its default dt (rows) and engine/integrator (columns), steps "
+        "per second of stepping from this sweep's timings (medians, measured as above; higher "
+        f"is faster), in parentheses its ratio to {engine} {integrator} on the same case and dt; "
+        "the figure adds each run's [min, max] over its repeats. Runs went through the "
+        "executor's workers, which share the machine; `rigidbench bench` times the same side "
+        "by side in one process, at least 5 repeats each."
+    )
+
+
+CATALOG = (
+    "How to read: what each case is, what an engine has to model for it, and what its errors "
+    "are measured against (exact: closed form; self-convergence: the same engine and "
+    "integrator at the finest dt)."
+)
+
+# ---- a case's sections -----------------------------------------------------------------------
+
+METRICS = (
+    "How to read: drifts are relative maxima over the run (0 is exact conservation), errors "
+    "the largest over the run against the reference; steps/s and realtime factor are "
+    "stepping only, higher is faster."
+)
+SOLVER_NOTE = (
+    " Solver columns are what an engine reports of its own contact solver, where it reports "
+    "anything: the reference's Gauss-Seidel sweeps per solve (two solves a step with contact), "
+    "the solves it stopped unconverged (at its iteration limit, or stalled), its subspace steps "
+    "per solve (a direct solve of the contacts that push, each costing more than a sweep) and "
+    "its extrapolations per solve (a jump along the sweeps' steady rate of convergence)."
+)
+DRIFT = (
+    "How to read: relative error of total energy and angular momentum against time at the "
+    "case's default dt (or the closest swept); a bounded wobble is what a symplectic "
+    "integrator gives, a steady climb is secular drift."
+)
+CONVERGENCE = (
+    "How to read: on log-log axes an error ~ dt^p is a straight line of slope p, the "
+    "fitted order; fits use valid runs with errors between "
+    f"{ERROR_FLOOR_DEG:g} deg (rounding below) and {ERROR_CEILING_DEG:g} deg (saturation "
+    f"above) and need {MIN_FIT_POINTS} such dt. R² near 1: a clean power law. Position "
+    f'order "exact": every position error is below {POSITION_FLOOR_M:g} m (rounding).'
+)
+CONTACT_ORDER_NOTE = (
+    " With contact, impacts are resolved once per step, so no integrator converges faster "
+    "than first order overall; the expected orders are those of the smooth motion between "
+    "contacts, and a low R² says the error is not a power law of dt at all (a contact "
+    "sequence that changes with dt)."
+)
+WORK_PRECISION = (
+    "How to read: lower left is better, less error for less stepping time; each engine's "
+    "Pareto front is its best error for a given time."
+)
+STABILITY_MAP = (
+    "How to read: where each engine and integrator breaks as dt grows: red diverged (a "
+    "non-finite state, or the energy grown past "
+    f"{ENERGY_GROWTH_LIMIT:g} times what the scene holds), orange tunnelled (a particle "
+    "centre behind a plane), pink jitter (a body that should rest still moves faster than "
+    f"{JITTER_SPEED:g} m/s at the end), dark grey failed (no run); valid runs are coloured "
+    "by their orientation error, light grey where none is measured."
+)
+
+# ---- outcomes ------------------------------------------------------------------------------
+
+FLIP_PERIOD = (
+    "flip_period: mean time between sign changes of the intermediate principal axis's component "
+    "along the angular momentum (the flips of a spin near that axis; half the nutation period "
+    "of a spin near another), against the exact solution's at the same sample times."
+)
+CASE_OUTCOMES = (
+    "How to read: per quantity (unit), its closed form and per engine/integrator the value "
+    "measured at the case's default dt, its error (measured - closed form) in parentheses "
+    "and, with several dts swept, the error's range over them in brackets. " + FLIP_PERIOD
+)
+CONTACT_VALIDATION = (
+    "What every engine does on the cases with contact, measured from its trajectories the "
+    "same way for all (`comparators.outcomes`), against what physics predicts in closed form "
+    "where the case states it."
+)
+CONTACT_OUTCOMES = (
+    "How to read: per quantity (unit), its closed form and per engine/integrator the value "
+    "measured at the case's default dt from the trajectory, its error (measured - closed form) "
+    "in parentheses and, when several dts were swept, the range of that error over them in "
+    f"brackets; {EMPTY_CELL} where there is no closed form or no measurement. rebound_ratio: "
+    "mean over the first bounces of the COM's normal rebound over approach speed, each carried "
+    "ballistically to the floor; apex_height_k: clearance of the lowest particle surface at the "
+    "k-th apex; stopping distance and time: until the COM speed stays below 1 mm/s; "
+    "slope_acceleration: least-squares fit of the downhill COM displacement, slides 1 or sticks "
+    "0; creep, jitter_rms (RMS COM speed) and penetration (deepest particle surface below the "
+    f"floor) over the final window (the last {FINAL_FRACTION:.0%} of the run, at most "
+    f"{FINAL_WINDOW_S:g} s), whose closed form at rest is 0; standing 1 or fallen 0 and "
+    "top_drift of a stack; momentum changes relative to the bodies' summed momenta; "
+    "max_penetration: the deepest any particle surface went below a plane (no closed form; "
+    "beyond the particle radius is a tunnel); " + FLIP_PERIOD
+)
+
+# ---- across cases --------------------------------------------------------------------------
+
+LARGEST_STABLE = (
+    "How to read: per case (rows) and engine/integrator (columns), the largest swept dt (s) "
+    "whose run and every run at a smaller dt have the verdict ok, with in parentheses the "
+    "verdict and dt of the first run that is not; ≥ dt: every swept dt is ok, the limit lies "
+    "beyond the sweep; none: even the smallest swept dt fails. A case swept at one dt only "
+    "(the quick report's hard cases) says ok or not at its default dt."
+)
+COST_TO_TOLERANCE = (
+    "How to read: per case and engine, the least stepping time per simulated second (s/s) "
+    "among its valid runs (any integrator, any dt) whose orientation error stays within "
+    "the tolerance, and which run achieved it; only cases with an exact reference."
+)
+
+
+def scaling(landing_s: float, windows: str) -> str:
+    """The scaling figure and table; `landing_s` is when the bottom layer lands, `windows`
+    describes the measured windows."""
+    return (
+        "How to read: the stepping cost of `cube_rain_N`, N cubes raining into an open box "
+        "(`cases.catalog.cube_rain`), against N, each engine with its default integrator, run "
+        "from t = 0 through the same path as every run (trajectory recorded). Times are "
+        "stepping only, the median of the repeats (min and max in `scaling.csv`), engines "
+        "interleaved; setup (model building and compilation) is apart. On the log-log plot a "
+        "cost growing as N runs parallel to the dashed line; a steeper line grows faster than "
+        "N. The bottom layer lands after "
+        f"about {landing_s:.1g} s, so a window shorter than that is free fall: the same work "
+        "per body at every N, a cost per body that grows is the engine's collision detection. "
+        "A longer window adds contact solving, and the work per body then grows with the pile "
+        f"as well (a lone cube touches only the floor). Windows: {windows}."
+    )
+
+
+PLATEAU = (
+    "Where cost per body-step stops being flat: per engine and window, the plateau is the "
+    "smallest cost per body-step over the smaller N, and it ends at the first N whose cost "
+    f"per body-step exceeds {PLATEAU_FACTOR:g} times it ({EMPTY_CELL}: flat up to the largest "
+    "N measured). Both are read from the fastest repeat: other processes only ever add "
+    "time, and a burst of load must not end a plateau."
+)
+PARITY = (
+    "How to read: the parity check confirms, before stepping, that each run's model has the "
+    "scene's mass, inertia, energy, momentum and angular momentum (1e-9 relative); a run "
+    "that fails it has the verdict `failed: parity ...`. Below it, per engine, every "
+    "setting that affects the result, read back from the engine's model (`meta.settings`) "
+    "of one run per integrator."
+)
+VERSIONS = (
+    "How to read: where the timings were taken, and the library versions each engine's runs "
+    "recorded (`meta.versions`); several versions in one cell mean runs came from different "
+    "installs (for instance from the results cache)."
+)
