@@ -1,0 +1,126 @@
+"""The `rigidbench` command line's arguments: one parser per command, and the argparse types
+that refuse bad numbers with the option's name."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+from pathlib import Path
+
+from comparators.bench import BENCH_DURATION_S, MIN_REPEATS
+
+DEFAULT_OUT = Path(__file__).resolve().parent / "out"
+
+
+def parse_positive_number(text: str) -> float:
+    """argparse type: a finite number > 0 (NaN and inf are refused with the option's name)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return value
+
+
+def _parse_whole(text: str, least: int) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < least:
+        raise argparse.ArgumentTypeError(f"expected a number >= {least}, got {text!r}")
+    return value
+
+
+def parse_count(text: str) -> int:
+    """argparse type: a whole number >= 1."""
+    return _parse_whole(text, 1)
+
+
+def parse_repeats(text: str) -> int:
+    """argparse type: a whole number >= MIN_REPEATS (a median with min and max)."""
+    return _parse_whole(text, MIN_REPEATS)
+
+
+def _add_show(sub) -> None:
+    show = sub.add_parser("show", help="a case as TOML (loads back to the same scene)")
+    show.add_argument("case", help="catalog name or path to a .toml case file")
+
+
+def _add_run(sub) -> None:
+    run_p = sub.add_parser("run", help="run one case on one engine and print its metrics")
+    run_p.add_argument("case", help="catalog name or path to a .toml case file")
+    run_p.add_argument("--engine", default="reference", help="engine name (default: reference)")
+    run_p.add_argument("--integrator", help="integrator name (default: the engine's default)")
+    run_p.add_argument(
+        "--dt", type=parse_positive_number, help="time step in s (default: the case's)"
+    )
+    run_p.add_argument(
+        "--duration", type=parse_positive_number, help="simulated time in s (default: the case's)"
+    )
+    run_p.add_argument("--out", help="write the trajectory table to FILE.csv or FILE.parquet")
+
+
+def _add_report(sub) -> None:
+    rep = sub.add_parser("report", help="sweep case x engine x integrator x dt; write the report")
+    rep.add_argument("--cases", nargs="+", help="catalog names or .toml files (default: catalog)")
+    rep.add_argument("--engines", nargs="+", help="engine names (default: every available one)")
+    rep.add_argument(
+        "--quick",
+        action="store_true",
+        help="a reduced dt sweep (3 steps per case) and a reduced scaling measurement",
+    )
+    rep.add_argument(
+        "--scaling",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="measure the cost per step of cube_rain_N against N (default: on)",
+    )
+    rep.add_argument("--out", default=str(DEFAULT_OUT), help=f"output directory ({DEFAULT_OUT})")
+    rep.add_argument("--cache", help="results cache directory (default: OUT/cache)")
+    rep.add_argument("--executor", choices=("local", "dask"), default="local")
+    rep.add_argument("--scheduler", help="Dask scheduler address, with --executor dask")
+    rep.add_argument(
+        "--jobs", type=parse_count, default=os.cpu_count() or 1, help="local worker processes"
+    )
+
+
+def _add_bench(sub) -> None:
+    ben = sub.add_parser("bench", help="steps/s of case x engine x integrator, side by side")
+    ben.add_argument("--cases", nargs="+", help="catalog names or .toml files (default: catalog)")
+    ben.add_argument("--engines", nargs="+", help="engine names (default: every available one)")
+    ben.add_argument(
+        "--dt",
+        type=parse_positive_number,
+        nargs="+",
+        help="time step(s) in s (default: each case's own)",
+    )
+    ben.add_argument(
+        "--duration",
+        type=parse_positive_number,
+        help=f"simulated time per run in s (default: the case's, at most {BENCH_DURATION_S:g})",
+    )
+    ben.add_argument(
+        "--repeats",
+        type=parse_repeats,
+        default=MIN_REPEATS,
+        help=f"timed repeats per run, at least {MIN_REPEATS} (default {MIN_REPEATS})",
+    )
+    ben.add_argument("--out", help="write the table to FILE.csv and its plot to FILE.png")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The parser of every command: list, engines, show, run, report, bench."""
+    parser = argparse.ArgumentParser(
+        prog="rigidbench", description="Validation and benchmark suite for rigid-body physics."
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    sub.add_parser("list", help="the case catalog with tags and what each models")
+    sub.add_parser("engines", help="engines and their integrators")
+    _add_show(sub)
+    _add_run(sub)
+    _add_report(sub)
+    _add_bench(sub)
+    return parser
