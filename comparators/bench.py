@@ -49,7 +49,7 @@ BENCH_COLUMNS = [
 BASELINE = ("mujoco", "Euler")
 # Simulated seconds per run at most (unless a duration is given): 1000 steps at dt 0.01, so
 # every run takes enough steps to time and the long cases (seed_cube's 100 s) no more than the
-# others; what that costs: docs/engines/measurement.md.
+# others; what that costs: docs/measurement.md.
 BENCH_DURATION_S = 10.0
 
 

@@ -44,7 +44,7 @@ VERDICTS = ("ok", "diverged", "tunnelled", "jitter")  # besides "failed: <reason
 
 # Energy growth past which a run has diverged, relative to `energy_scale`: an order of magnitude,
 # a blow-up rather than an error; correct integrators stay far below it (figures behind this and
-# the next thresholds: docs/engines/measurement.md).
+# the next thresholds: docs/measurement.md).
 ENERGY_GROWTH_LIMIT = 10.0
 # A body that should rest "jitters" when some particle still moves faster than this in the final
 # window: metrics.REST_SPEED, the suite's definition of rest, far above any engine's resting noise.

@@ -51,7 +51,7 @@ WARM_UP_STEPS = 1  # enough to load an engine's compiled code and libraries befo
 # factors would flag noise, and a doubled cost per body means the part growing faster than N
 # has caught up with the linear part. The rule reads the fastest repeat (`wall_min_s`), not the
 # median: other processes only ever add time, and a burst of load during the repeats of one N
-# can move its median by up to 10x (docs/engines/measurement.md), enough to end a plateau.
+# can move its median by up to 10x (docs/measurement.md), enough to end a plateau.
 PLATEAU_FACTOR = 2.0
 
 SCALING_COLUMNS = [

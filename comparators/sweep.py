@@ -123,7 +123,7 @@ class SweepResult:
 # reach the asymptotic range of every integrator on the exact cases. Quick: three points, the
 # fewest a convergence fit can use; the hard cases (tag "hard": long runs, small default dt) and
 # cases simulating more than QUICK_LONG_S only at their default dt, to keep
-# `rigidbench report --quick` within its 2-minute budget (docs/engines/measurement.md).
+# `rigidbench report --quick` within its 2-minute budget (docs/measurement.md).
 FULL_DT_FACTORS = (2.0, 1.0, 0.5, 0.25, 0.125, 0.0625)
 QUICK_DT_FACTORS = (2.0, 1.0, 0.5)
 QUICK_HARD_DT_FACTORS = (1.0,)

@@ -3,7 +3,7 @@
 One repeat policy (`wants_another_timing`), one interleaving of runs (`interleaved`), one
 statistic (`spread`: median, min, max), one way to attempt a run without raising
 (`attempt_run`). Each use names its repeat count: `SWEEP_REPEATS`, `BENCH_REPEATS`,
-`SCALING_REPEATS`. Figures behind the counts: docs/engines/measurement.md.
+`SCALING_REPEATS`. Figures behind the counts: docs/measurement.md.
 """
 
 from __future__ import annotations
