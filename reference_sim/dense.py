@@ -1,11 +1,10 @@
 """Dense symmetric positive definite solves in preallocated arrays, for the compiled step loops.
 
-The contact solver's subspace step (`reference_sim.contact`) solves a system of at most a few
-dozen unknowns several times a step; kernels allocate nothing, so `np.linalg` is not an option.
-The factor is upper triangular (a = U^T U) and computed a row at a time, so that every inner
-loop runs along contiguous rows of the row-major array: the textbook lower-triangular
-dot-product form took 7.5 us for the 30 unknowns of `cube_stack` (chains of dependent
-additions down strided columns).
+The contact solver's subspace step (`reference_sim.contact.subspace`) solves a system of at most
+a few dozen unknowns several times a step; kernels allocate nothing, so `np.linalg` is not an
+option. The factor is upper triangular (a = U^T U) and computed a row at a time, so that every
+inner loop runs along contiguous rows of the row-major array rather than as chains of dependent
+additions down strided columns (the textbook lower-triangular form).
 """
 
 import math

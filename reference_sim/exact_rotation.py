@@ -1,5 +1,8 @@
 """The exact torque-free (Euler-Poinsot) rotation of a rigid body over one step, compiled.
 
+(Over 500 lines: one closed-form method, most of it the derivation below and the special
+functions it alone uses.)
+
 `exact_rotation(q, L, moments, axes, dt)` returns the orientation after the free flow for a
 time dt, in closed form, with scalars only (no arrays are allocated), for the simulator's loop.
 Conventions as in `reference_sim.rigid`: q (w, x, y, z) maps the body frame (the world frame at
@@ -53,7 +56,7 @@ import math
 
 import numpy as np
 
-from reference_sim.jit import kernel
+from reference_sim.jit import inlined_kernel, kernel
 from reference_sim.quaternion import qfrom_matrix, qmul
 
 # Principal moments closer than this (relative to the largest) are taken as equal, selecting the
@@ -300,6 +303,94 @@ def _euler_b(p1, p2, p3):
     return ct * cp, st * cp, -st * sp, ct * sp
 
 
+@inlined_kernel
+def _separatrix_flow(sn0, cn0, lam, n, dt):
+    """On the separatrix (m1 = 0): sn = tanh, cn = dn = sech, no period. Here I3 is the largest,
+    so I1 < I2 and w1 = sech^2 / (1 + nu tanh^2), whose integral is atan(sqrt(nu) tanh)/sqrt(nu).
+    Returns sn, cn, dn after the step, the sign flip of pi1, pi2 (none) and the integral of w."""
+    tau0 = math.asinh(sn0 / cn0)
+    tau1 = tau0 + lam * dt
+    sn1, cn1 = math.tanh(tau1), 1.0 / math.cosh(tau1)
+    dn1 = cn1
+    flip = 1.0
+    r = math.sqrt(-n)
+    dw = (math.atan(r * sn1) - math.atan(r * sn0)) / r
+    return sn1, cn1, dn1, flip, dw
+
+
+@inlined_kernel
+def _phase_after(sn0, cn0, dn0, ee, m1, quarter, lam, dt):
+    """The phase after the step as j1 K + offset (j1 an integer, |phase| <= K up to rounding),
+    and the half periods `turns` it was reduced by. Kept so, not as tau, so that a short step
+    near a quarter period (near the intermediate axis, m1 small) never forms K - tau by
+    cancellation. |tau0| > K/2 when sn(K - |tau0|) = cd tau0 < sn(K/2)."""
+    if cn0 * cn0 * (1.0 + math.sqrt(m1)) < ee:
+        # tau0 = +-(K - u0), sn u0 = cn0 / dn0, cn u0 = sqrt(m1) |sn0| / dn0
+        su, cu = cn0 / dn0, math.sqrt(m1) * abs(sn0) / dn0
+        j0 = math.copysign(1.0, sn0)
+        offset = -j0 * su * _carlson_rf(cu * cu, cu * cu + m1 * su * su, 1.0)
+    else:
+        j0 = 0.0
+        offset = sn0 * _carlson_rf(cn0 * cn0, ee, 1.0)  # F(phi0 | m), |phi0| <= pi/2
+    offset += lam * dt
+    turns = np.floor((j0 * quarter + offset) / (2.0 * quarter) + 0.5)
+    j1 = j0 - 2.0 * turns
+    rest = j1 * quarter + offset
+    if abs(rest) > LOST_PHASE * quarter:
+        # |lambda dt| so large that its rounding exceeds a period (dt ~ 1e16 periods): the
+        # phase is lost anyway; reduce what is left so the functions stay in range.
+        j1, offset = 0.0, rest - 2.0 * quarter * np.floor(rest / (2.0 * quarter) + 0.5)
+    return j1, offset, turns
+
+
+@inlined_kernel
+def _weight_change(sn0, cn0, dn0, sn1, cn1, dn1, m1, n, turns, lo_is_1):
+    """The integral over the step of the weight w of the smaller of I1, I2 (in tau)."""
+    if lo_is_1:
+        # w1(tau) = k sn^2(v) / (1 - (1 - k) sn^2(v)), v = tau + K, k = m1 / (1 - n):
+        # sn v = cn tau / dn tau, |cn v| = sqrt(m1) |sn tau| / dn tau, and cn v < 0 for
+        # tau > 0, where the integral from 0 to v is 2 G(K) - G(2K - v).
+        k = m1 / (1.0 - n)
+        rm1 = math.sqrt(m1)
+        w0 = _weight_integral(cn0 / dn0, rm1 * abs(sn0) / dn0, m1, k)
+        w1 = _weight_integral(cn1 / dn1, rm1 * abs(sn1) / dn1, m1, k)
+        if sn0 > 0.0:
+            w0 = -w0
+            turns_w = turns - 1.0
+        else:
+            turns_w = turns
+        if sn1 > 0.0:
+            w1 = -w1
+            turns_w += 1.0
+    else:
+        # w2(tau) = k sn^2 / (1 - n sn^2), k = 1 - n = a2^2 / a1^2.
+        k = 1.0 - n
+        w0 = _weight_integral(sn0, cn0, m1, k)
+        w1 = _weight_integral(sn1, cn1, m1, k)
+        turns_w = turns
+    # Each half period adds 2 G(K); G(K) only when needed (one R_J fewer).
+    complete = _weight_integral(1.0, 0.0, m1, k) if turns_w != 0.0 else 0.0
+    return k * (w1 - w0 + 2.0 * turns_w * complete)
+
+
+@inlined_kernel
+def _elliptic_flow(sn0, cn0, m, m1, lam, n, lo_is_1, dt):
+    """Off the separatrix: sn, cn, dn after the step, the sign flip of pi1, pi2 (-1 after an odd
+    number of half periods) and the integral of the weight w."""
+    ee = cn0 * cn0 + m1 * sn0 * sn0
+    dn0 = math.sqrt(ee)
+    levels, a_last = _agm_levels(m, m1)
+    quarter = 0.5 * math.pi / a_last  # K; pi -> (-pi1, -pi2, pi3) over 2K
+    j1, offset, turns = _phase_after(sn0, cn0, dn0, ee, m1, quarter, lam, dt)
+    quarter_c = 0.0
+    if m1 < M1_SERIES_MAX:
+        quarter_c = 0.5 * math.pi / _agm_levels(m1, m)[1]  # K' = K(m1)
+    sn1, cn1, dn1 = _jacobi_sncndn(j1, offset, m, m1, quarter, quarter_c, levels, a_last)
+    flip = -1.0 if turns % 2.0 != 0.0 else 1.0
+    dw = _weight_change(sn0, cn0, dn0, sn1, cn1, dn1, m1, n, turns, lo_is_1)
+    return sn1, cn1, dn1, flip, dw
+
+
 @kernel
 def _principal_step(p1, p2, p3, i1, i2, i3, sep, l_norm, dt):
     """Rotation (w, x, y, z) in principal coordinates over dt: B(pi0)^-1 Rz(dphi) B(pi1).
@@ -330,69 +421,9 @@ def _principal_step(p1, p2, p3, i1, i2, i3, sep, l_norm, dt):
     lo_is_1 = i1 < i2  # the smaller of I1, I2; its weight is integrated
     i_hi = i2 if lo_is_1 else i1
     if m1 == 0.0:
-        # On the separatrix: sn = tanh, cn = dn = sech, no period; here I3 is the largest, so
-        # lo_is_1 and w1 = sech^2 / (1 + nu tanh^2), whose integral is atan(sqrt(nu) tanh)/sqrt(nu).
-        tau0 = math.asinh(sn0 / cn0)
-        tau1 = tau0 + lam * dt
-        sn1, cn1 = math.tanh(tau1), 1.0 / math.cosh(tau1)
-        dn1 = cn1
-        flip = 1.0
-        r = math.sqrt(-n)
-        dw = (math.atan(r * sn1) - math.atan(r * sn0)) / r
+        sn1, cn1, dn1, flip, dw = _separatrix_flow(sn0, cn0, lam, n, dt)
     else:
-        ee = cn0 * cn0 + m1 * sn0 * sn0
-        dn0 = math.sqrt(ee)
-        levels, a_last = _agm_levels(m, m1)
-        quarter = 0.5 * math.pi / a_last  # K; pi -> (-pi1, -pi2, pi3) over 2K
-        # The phase is kept as j K + offset, j an integer, so that a short step near a
-        # quarter period (the body near the intermediate axis when m1 is small) never forms
-        # K - tau by cancellation. |tau0| > K/2 when sn(K - |tau0|) = cd tau0 < sn(K/2).
-        if cn0 * cn0 * (1.0 + math.sqrt(m1)) < ee:
-            # tau0 = +-(K - u0), sn u0 = cn0 / dn0, cn u0 = sqrt(m1) |sn0| / dn0
-            su, cu = cn0 / dn0, math.sqrt(m1) * abs(sn0) / dn0
-            j0 = math.copysign(1.0, sn0)
-            offset = -j0 * su * _carlson_rf(cu * cu, cu * cu + m1 * su * su, 1.0)
-        else:
-            j0 = 0.0
-            offset = sn0 * _carlson_rf(cn0 * cn0, ee, 1.0)  # F(phi0 | m), |phi0| <= pi/2
-        offset += lam * dt
-        turns = np.floor((j0 * quarter + offset) / (2.0 * quarter) + 0.5)
-        j1 = j0 - 2.0 * turns
-        rest = j1 * quarter + offset
-        if abs(rest) > LOST_PHASE * quarter:
-            # |lambda dt| so large that its rounding exceeds a period (dt ~ 1e16 periods): the
-            # phase is lost anyway; reduce what is left so the functions stay in range.
-            j1, offset = 0.0, rest - 2.0 * quarter * np.floor(rest / (2.0 * quarter) + 0.5)
-        quarter_c = 0.0
-        if m1 < M1_SERIES_MAX:
-            quarter_c = 0.5 * math.pi / _agm_levels(m1, m)[1]  # K' = K(m1)
-        sn1, cn1, dn1 = _jacobi_sncndn(j1, offset, m, m1, quarter, quarter_c, levels, a_last)
-        flip = -1.0 if turns % 2.0 != 0.0 else 1.0
-        if lo_is_1:
-            # w1(tau) = k sn^2(v) / (1 - (1 - k) sn^2(v)), v = tau + K, k = m1 / (1 - n):
-            # sn v = cn tau / dn tau, |cn v| = sqrt(m1) |sn tau| / dn tau, and cn v < 0 for
-            # tau > 0, where the integral from 0 to v is 2 G(K) - G(2K - v).
-            k = m1 / (1.0 - n)
-            rm1 = math.sqrt(m1)
-            w0 = _weight_integral(cn0 / dn0, rm1 * abs(sn0) / dn0, m1, k)
-            w1 = _weight_integral(cn1 / dn1, rm1 * abs(sn1) / dn1, m1, k)
-            if sn0 > 0.0:
-                w0 = -w0
-                turns_w = turns - 1.0
-            else:
-                turns_w = turns
-            if sn1 > 0.0:
-                w1 = -w1
-                turns_w += 1.0
-        else:
-            # w2(tau) = k sn^2 / (1 - n sn^2), k = 1 - n = a2^2 / a1^2.
-            k = 1.0 - n
-            w0 = _weight_integral(sn0, cn0, m1, k)
-            w1 = _weight_integral(sn1, cn1, m1, k)
-            turns_w = turns
-        # Each half period adds 2 G(K); G(K) only when needed (one R_J fewer).
-        complete = _weight_integral(1.0, 0.0, m1, k) if turns_w != 0.0 else 0.0
-        dw = k * (w1 - w0 + 2.0 * turns_w * complete)
+        sn1, cn1, dn1, flip, dw = _elliptic_flow(sn0, cn0, m, m1, lam, n, lo_is_1, dt)
     # dphi/dt = |L| / I_hi + |L| (1/I_lo - 1/I_hi) w_lo, with d tau = lambda dt.
     dphi = l_norm * (dt / i_hi + abs(d12) * dw / lam)
     q1 = _euler_b(flip * a1 * cn1, flip * a2 * sn1, a3 * dn1)
@@ -410,6 +441,110 @@ def _signed_unit(p, qw, qx, qy, qz):
     if p[0] * qw + p[1] * qx + p[2] * qy + p[3] * qz < 0.0:
         n = -n
     return p[0] / n, p[1] / n, p[2] / n, p[3] / n
+
+
+@inlined_kernel
+def _isotropic(qw, qx, qy, qz, lx, ly, lz, ia, ib, ic, dt):
+    """All moments equal: omega = L / I is constant in the world."""
+    s = dt * 3.0 / (ia + ib + ic)
+    e = _qexp(s * lx, s * ly, s * lz)
+    out = qmul(e, (qw, qx, qy, qz))
+    return _signed_unit(out, qw, qx, qy, qz)
+
+
+@inlined_kernel
+def _body_momentum(qw, qx, qy, qz, lx, ly, lz):
+    """Body-frame angular momentum R^T L: L rotated by the conjugate of q."""
+    ux, uy, uz = -qx, -qy, -qz
+    tx = 2.0 * (uy * lz - uz * ly)
+    ty = 2.0 * (uz * lx - ux * lz)
+    tz = 2.0 * (ux * ly - uy * lx)
+    bx = lx + qw * tx + (uy * tz - uz * ty)
+    by = ly + qw * ty + (uz * tx - ux * tz)
+    bz = lz + qw * tz + (ux * ty - uy * tx)
+    return bx, by, bz
+
+
+@inlined_kernel
+def _axisymmetric(qw, qx, qy, qz, lx, ly, lz, bx, by, bz, moments, axes, low_pair, dt):
+    """Two moments equal (the lower pair if `low_pair`): R(t + dt) = Rot(L dt / I_t) R(t)
+    Rot_body(s, rate dt), s the symmetry axis, rate = (1/I_s - 1/I_t) (L . s), the spin
+    relative to the precessing frame."""
+    ia, ib, ic = moments[0], moments[1], moments[2]
+    k = 2 if low_pair else 0
+    i_sym = moments[k]
+    i_trans = 0.5 * (ia + ib) if low_pair else 0.5 * (ib + ic)
+    sx, sy, sz = axes[k, 0], axes[k, 1], axes[k, 2]
+    rate = (i_trans - i_sym) / (i_sym * i_trans) * (sx * bx + sy * by + sz * bz) * dt
+    spin = _qexp(rate * sx, rate * sy, rate * sz)
+    f = dt / i_trans
+    e = _qexp(f * lx, f * ly, f * lz)
+    t = qmul((qw, qx, qy, qz), spin)
+    out = qmul(e, t)
+    return _signed_unit(out, qw, qx, qy, qz)
+
+
+@inlined_kernel
+def _steady_spin(qw, qx, qy, qz, p1, p2, p3, i2, i3, f2, f3, e2, e3, dt):
+    """pi along axis 3 (p1 = p2 = 0), or at the saddle, axis 2 (p1 = p3 = 0): a steady spin
+    omega = I^-1 pi in the body; a rotation about a body-frame axis multiplies on the right."""
+    if p1 * p1 + p2 * p2 == 0.0:
+        w = p3 / i3 * dt
+        e = _qexp(w * f3 * e3[0], w * f3 * e3[1], w * f3 * e3[2])
+    else:
+        w = p2 / i2 * dt
+        e = _qexp(w * f2 * e2[0], w * f2 * e2[1], w * f2 * e2[2])
+    out = qmul((qw, qx, qy, qz), e)
+    return _signed_unit(out, qw, qx, qy, qz)
+
+
+@inlined_kernel
+def _triaxial(qw, qx, qy, qz, bx, by, bz, moments, axes, l_norm, dt):
+    """Three distinct moments: the elliptic flow (`_principal_step`) in the principal frame of
+    the axis the polhode circles, composed with the body's orientation."""
+    ia, ib, ic = moments[0], moments[1], moments[2]
+    a0 = (axes[0, 0], axes[0, 1], axes[0, 2])
+    a1 = (axes[1, 0], axes[1, 1], axes[1, 2])
+    a2 = (axes[2, 0], axes[2, 1], axes[2, 2])
+    pa = a0[0] * bx + a0[1] * by + a0[2] * bz
+    pb = a1[0] * bx + a1[1] * by + a1[2] * bz
+    pc = a2[0] * bx + a2[1] * by + a2[2] * bz
+    # |L|^2 / I_b - 2T: its sign says which extreme axis the polhode circles (0: separatrix).
+    sep = pa * pa * (ia - ib) / (ia * ib) + pc * pc * (ic - ib) / (ib * ic)
+    if sep >= 0.0:  # around the largest moment: (1, 2, 3) = (a, b, c)
+        e1, e2, e3 = a0, a1, a2
+        p1, p2, p3, i1, i2, i3 = pa, pb, pc, ia, ib, ic
+    else:  # around the smallest: (1, 2, 3) = (c, -b, a), still right-handed
+        e1, e2, e3 = a2, (-a1[0], -a1[1], -a1[2]), a0
+        p1, p2, p3, i1, i2, i3 = pc, -pb, pa, ic, ib, ia
+    # A rotation by pi about a principal axis maps solutions to solutions: pick the signs of the
+    # axes (an even number of flips keeps the frame right-handed) so that p1 >= 0 and p3 >= 0.
+    f1 = 1.0 if p1 >= 0.0 else -1.0
+    f3 = 1.0 if p3 >= 0.0 else -1.0
+    f2 = f1 * f3
+    p1, p2, p3 = f1 * p1, f2 * p2, f3 * p3
+    # Squares, not components: the elliptic path divides by a1 ~ sqrt(p1^2 + p2^2).
+    if p1 * p1 + p2 * p2 == 0.0 or p1 * p1 + p3 * p3 == 0.0:
+        return _steady_spin(qw, qx, qy, qz, p1, p2, p3, i2, i3, f2, f3, e2, e3, dt)
+    d = _principal_step(p1, p2, p3, i1, i2, i3, sep, l_norm, dt)
+    # The principal frame P as a rotation of the body frame: columns f1 e1, f2 e2, f3 e3.
+    pw, px, py, pz = qfrom_matrix(
+        (
+            f1 * e1[0],
+            f2 * e2[0],
+            f3 * e3[0],
+            f1 * e1[1],
+            f2 * e2[1],
+            f3 * e3[1],
+            f1 * e1[2],
+            f2 * e2[2],
+            f3 * e3[2],
+        )
+    )
+    t = qmul(d, (pw, -px, -py, -pz))
+    t = qmul((pw, px, py, pz), t)
+    out = qmul((qw, qx, qy, qz), t)
+    return _signed_unit(out, qw, qx, qy, qz)
 
 
 @kernel
@@ -430,83 +565,9 @@ def exact_rotation(q, L, moments, axes, dt):
     ia, ib, ic = moments[0], moments[1], moments[2]
     spread = EQUAL_MOMENTS_RTOL * ic
     if ic - ia <= spread:
-        # Isotropic: omega = L / I is constant in the world.
-        s = dt * 3.0 / (ia + ib + ic)
-        e = _qexp(s * lx, s * ly, s * lz)
-        out = qmul(e, (qw, qx, qy, qz))
-        return _signed_unit(out, qw, qx, qy, qz)
-    # Body-frame angular momentum R^T L: rotate L by the conjugate of q.
-    ux, uy, uz = -qx, -qy, -qz
-    tx = 2.0 * (uy * lz - uz * ly)
-    ty = 2.0 * (uz * lx - ux * lz)
-    tz = 2.0 * (ux * ly - uy * lx)
-    bx = lx + qw * tx + (uy * tz - uz * ty)
-    by = ly + qw * ty + (uz * tx - ux * tz)
-    bz = lz + qw * tz + (ux * ty - uy * tx)
+        return _isotropic(qw, qx, qy, qz, lx, ly, lz, ia, ib, ic, dt)
+    bx, by, bz = _body_momentum(qw, qx, qy, qz, lx, ly, lz)
     low_pair = ib - ia <= spread
     if low_pair or ic - ib <= spread:
-        # Axisymmetric: R(t + dt) = Rot(L dt / I_t) R(t) Rot_body(s, rate dt), s the symmetry
-        # axis, rate = (1/I_s - 1/I_t) (L . s), the spin relative to the precessing frame.
-        k = 2 if low_pair else 0
-        i_sym = moments[k]
-        i_trans = 0.5 * (ia + ib) if low_pair else 0.5 * (ib + ic)
-        sx, sy, sz = axes[k, 0], axes[k, 1], axes[k, 2]
-        rate = (i_trans - i_sym) / (i_sym * i_trans) * (sx * bx + sy * by + sz * bz) * dt
-        spin = _qexp(rate * sx, rate * sy, rate * sz)
-        f = dt / i_trans
-        e = _qexp(f * lx, f * ly, f * lz)
-        t = qmul((qw, qx, qy, qz), spin)
-        out = qmul(e, t)
-        return _signed_unit(out, qw, qx, qy, qz)
-    a0x, a0y, a0z = axes[0, 0], axes[0, 1], axes[0, 2]
-    a1x, a1y, a1z = axes[1, 0], axes[1, 1], axes[1, 2]
-    a2x, a2y, a2z = axes[2, 0], axes[2, 1], axes[2, 2]
-    pa = a0x * bx + a0y * by + a0z * bz
-    pb = a1x * bx + a1y * by + a1z * bz
-    pc = a2x * bx + a2y * by + a2z * bz
-    # |L|^2 / I_b - 2T: its sign says which extreme axis the polhode circles (0: separatrix).
-    sep = pa * pa * (ia - ib) / (ia * ib) + pc * pc * (ic - ib) / (ib * ic)
-    if sep >= 0.0:  # around the largest moment: (1, 2, 3) = (a, b, c)
-        e1x, e1y, e1z, e2x, e2y, e2z, e3x, e3y, e3z = a0x, a0y, a0z, a1x, a1y, a1z, a2x, a2y, a2z
-        p1, p2, p3, i1, i2, i3 = pa, pb, pc, ia, ib, ic
-    else:  # around the smallest: (1, 2, 3) = (c, -b, a), still right-handed
-        e1x, e1y, e1z, e2x, e2y, e2z = a2x, a2y, a2z, -a1x, -a1y, -a1z
-        e3x, e3y, e3z = a0x, a0y, a0z
-        p1, p2, p3, i1, i2, i3 = pc, -pb, pa, ic, ib, ia
-    # A rotation by pi about a principal axis maps solutions to solutions: pick the signs of the
-    # axes (an even number of flips keeps the frame right-handed) so that p1 >= 0 and p3 >= 0.
-    f1 = 1.0 if p1 >= 0.0 else -1.0
-    f3 = 1.0 if p3 >= 0.0 else -1.0
-    f2 = f1 * f3
-    p1, p2, p3 = f1 * p1, f2 * p2, f3 * p3
-    # Squares, not components: the elliptic path divides by a1 ~ sqrt(p1^2 + p2^2).
-    if p1 * p1 + p2 * p2 == 0.0 or p1 * p1 + p3 * p3 == 0.0:
-        # Along axis 3, or at the saddle (axis 2): a steady spin omega = I^-1 pi in the body.
-        if p1 * p1 + p2 * p2 == 0.0:
-            w = p3 / i3 * dt
-            e = _qexp(w * f3 * e3x, w * f3 * e3y, w * f3 * e3z)
-        else:
-            w = p2 / i2 * dt
-            e = _qexp(w * f2 * e2x, w * f2 * e2y, w * f2 * e2z)
-        # a rotation about a body-frame axis multiplies on the right
-        out = qmul((qw, qx, qy, qz), e)
-        return _signed_unit(out, qw, qx, qy, qz)
-    d = _principal_step(p1, p2, p3, i1, i2, i3, sep, l_norm, dt)
-    # The principal frame P as a rotation of the body frame: columns f1 e1, f2 e2, f3 e3.
-    pw, px, py, pz = qfrom_matrix(
-        (
-            f1 * e1x,
-            f2 * e2x,
-            f3 * e3x,
-            f1 * e1y,
-            f2 * e2y,
-            f3 * e3y,
-            f1 * e1z,
-            f2 * e2z,
-            f3 * e3z,
-        )
-    )
-    t = qmul(d, (pw, -px, -py, -pz))
-    t = qmul((pw, px, py, pz), t)
-    out = qmul((qw, qx, qy, qz), t)
-    return _signed_unit(out, qw, qx, qy, qz)
+        return _axisymmetric(qw, qx, qy, qz, lx, ly, lz, bx, by, bz, moments, axes, low_pair, dt)
+    return _triaxial(qw, qx, qy, qz, bx, by, bz, moments, axes, l_norm, dt)

@@ -3,7 +3,7 @@
 State per body: COM x, orientation q, COM velocity v and world angular momentum L. The world
 inertia is R(q) I0 R(q)^T and omega = I(t)^-1 L. Uniform gravity exerts no torque about the
 COM, so without contact L is constant and every integrator leaves it untouched; contact enters
-as impulses before and after the drift (`reference_sim.contact`).
+as impulses before and after the drift (`reference_sim.contact.step`).
 
 - euler: semi-implicit Euler, first order: v += g dt; x += v dt; q <- exp(omega dt) q.
 - splitting: kick-drift-kick (Stormer-Verlet) for translation, so constant gravity is exact;
@@ -21,19 +21,18 @@ import math
 
 import numpy as np
 
-from reference_sim.contact import (
-    GRID_MIN_BODIES,
+from reference_sim.contact.buffers import (
+    COUNT_KEPT_ROWS,
+    COUNT_PAIRS,
     SOLVER_STATISTICS,
-    after_drift,
-    before_drift,
     contact_buffers,
-    find_candidates_into,
-    frames_into,
-    grid_pairs,
     grown,
-    reach_into,
-    world_omega,
 )
+from reference_sim.contact.candidates import find_candidates_into
+from reference_sim.contact.frames import frames_into, reach_into, world_omega
+from reference_sim.contact.grid import grid_pairs
+from reference_sim.contact.settings import GRID_MIN_BODIES
+from reference_sim.contact.step import after_drift, before_drift
 from reference_sim.exact_rotation import exact_rotation
 from reference_sim.jit import compiled, inlined_kernel, kernel
 from reference_sim.model import Model
@@ -45,12 +44,8 @@ EULER, SPLITTING, RK4, EXACT = 0, 1, 2, 3
 # Impacts slower than this many steps' worth of gravity are resting contacts, not bounces:
 # a body lying still gains |g| dt of approach speed every step and must not bounce on it.
 BOUNCE_STEPS = 2.0
-# Contact rows (Jacobians, inverse masses, gaps) are kept from one assembly to the next while no
-# body has moved by this much (m) since they were assembled (`_moved_from`). A step then uses
-# rows assembled at most 2 POSE_ROUNDING from the current pose: gaps and lever arms off by at
-# most that, a fifth of the gaps' own rounding (`contact.GAP_ROUNDING`). A body at rest moves by
-# rounding: `dropped_cube` (`euler`) by 1.7e-20 m a step, which, bit for bit, left 176 of its 500
-# steps without any motion and 1 in a run whose solver rounded differently.
+# Contact rows (Jacobians, inverse masses, gaps) are kept while no body has moved by this much (m)
+# since their assembly (`_moved_from`): off by 2e-15 m at most, a fifth of `GAP_ROUNDING`.
 POSE_ROUNDING = 1e-15
 
 
@@ -206,14 +201,14 @@ def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, buf):
             )
         # `buf.pose`: the pose the kept rows were assembled at, within POSE_ROUNDING; with no
         # row kept from the last step, the first assembly makes them all here
-        if buf.counts[3] == 0:
+        if buf.counts[COUNT_KEPT_ROWS] == 0:
             _pose_into(x, q, buf.pose)
         before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf)
     _drift(model, integrator, x, q, v, L, dt)
     # `before_drift` assembled every candidate's rows; they serve after the drift while no body
     # has moved by POSE_ROUNDING since `buf.pose` (a body at rest)
     kept = nc > 0 and not _moved_from(model, x, q, buf.pose)
-    buf.counts[3] = nc if kept else 0
+    buf.counts[COUNT_KEPT_ROWS] = nc if kept else 0
     if nc > 0:
         after_drift(model, x, q, v, L, nc, dt, buf)
         if not kept:  # every row assembled afresh at this pose
@@ -254,7 +249,7 @@ def _grid_pairs(model, integrator, x, q, v, L, dt, buf):
         buf = grown(buf, buf.cands.shape[0], 2 * pairs.shape[0])
     for p in range(pairs.shape[0]):
         buf.pairs[p, 0], buf.pairs[p, 1] = pairs[p, 0], pairs[p, 1]
-    buf.counts[2] = pairs.shape[0]
+    buf.counts[COUNT_PAIRS] = pairs.shape[0]
     return buf
 
 
@@ -323,9 +318,8 @@ def run_rigid(model, integrator, x, q, v, L, dt, n_steps, stride):
 @compiled
 def run_rigid_fields(fields, integrator, x, q, v, L, dt, n_steps, stride):
     """`run_rigid` with the model passed as a plain tuple of its fields, `tuple(model)`: numba
-    types a NamedTuple argument in Python on every call, a plain tuple in C (a call passing the
-    model measured 3.5 against 1.4 us, and 18 against 10 us with the caches cold, as after
-    another engine's run)."""
+    types a NamedTuple argument in Python on every call, a plain tuple in C, which makes the
+    call itself several times cheaper."""
     return run_rigid(Model(*fields), integrator, x, q, v, L, dt, n_steps, stride)
 
 

@@ -5,15 +5,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from reference_sim.contact import (
-    after_drift,
-    before_drift,
-    contact_buffers,
-    find_candidates_into,
-    frames_into,
-    grid_pairs,
-    grown,
-)
+from reference_sim.contact.buffers import contact_buffers, grown
+from reference_sim.contact.candidates import find_candidates_into
+from reference_sim.contact.frames import frames_into
+from reference_sim.contact.grid import grid_pairs
+from reference_sim.contact.step import after_drift, before_drift
 from reference_sim.model import (
     Model,
     RigidState,
@@ -90,9 +86,7 @@ def simulate(
 
 # Parts of the simulator that compile independently; the stages of one group run in order
 # (the later ones load the earlier ones' code from numba's cache), the groups in parallel
-# processes. CPU seconds measured on 2 busy cores: seed ~40, contact ~30, rigid ~22 (with the
-# contact code cached); on an idle core since the solver and assembly are inlined into the step
-# (`reference_sim/jit.py`), contact 41 and rigid 61: that group now takes the longest.
+# processes. The contact and rigid stages together take the longest (docs/contact-solver.md).
 COMPILE_GROUPS = (("seed",), ("contact", "rigid"))
 COMPILE_STAGES = tuple(stage for group in COMPILE_GROUPS for stage in group)
 

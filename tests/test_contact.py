@@ -14,7 +14,27 @@ from cases.exact import exact_states
 from comparators import run
 from comparators.metrics import body_arrays, conserved_quantities, pose_errors
 from comparators.reference import model_from_scene
-from reference_sim import contact, rigid
+from reference_sim import rigid
+from reference_sim.contact import (
+    buffers,
+    candidates,
+    frames,
+    gauss_seidel,
+    settings,
+    subspace,
+    warm_start,
+)
+from reference_sim.contact import step as contact_step
+from reference_sim.contact.buffers import (
+    COUNT_PRE_WARM,
+    PRE_DRIFT,
+    STAT_EXTRAPOLATIONS,
+    STAT_SOLVES,
+    STAT_SWEEPS,
+    STAT_UNCONVERGED,
+)
+from reference_sim.contact.impulses import row_speed
+from reference_sim.contact.rows import assemble
 from reference_sim.quaternion import qmatrix
 from reference_sim.rigid import BOUNCE_STEPS, INTEGRATORS, rigid_step
 
@@ -93,25 +113,26 @@ def test_gauss_seidel_ends_on_targets_no_rigid_motion_meets():
     scene = CATALOG["resting_cube"]
     model = model_from_scene(scene)
     x, q, v, L = initial_state(model, scene)
-    buf = contact.contact_buffers(1, 16, 4)
-    contact.frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
-    nc = contact.find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
+    buf = buffers.contact_buffers(1, 16, 4)
+    frames.frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
+    nc = candidates.find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
     assert nc == 4  # the bottom face's corners
     buf.acting[:nc] = True
-    contact._assemble(model, x, nc, contact.TOUCH_TOLERANCE, buf, 0)
+    assemble(model, x, nc, settings.TOUCH_TOLERANCE, buf, 0)
     disagreement = 1e-5
     buf.target[:nc] = (0.0, 0.0, 0.0, disagreement)
     v += scene.dt * model.gravity
-    tolerance = contact.VELOCITY_TOLERANCE
-    sweeps, converged = contact._iterate(
-        model, x, nc, scene.dt, buf, v, L, tolerance, contact.IDLE_MARGIN
+    tolerance = settings.VELOCITY_TOLERANCE
+    sweeps, converged = gauss_seidel.iterate(
+        model, x, nc, scene.dt, buf, v, L, tolerance, settings.IDLE_MARGIN
     )
-    assert converged and sweeps < contact.MAX_ITERATIONS
+    assert converged and sweeps < settings.MAX_ITERATIONS
     for k in range(nc):
-        speed = contact._speed(buf.jac[k, 0], buf.cands[k, 0], buf.cands[k, 2], v, buf.omega)
+        speed = row_speed(buf.jac[k, 0], buf.cands[k, 0], buf.cands[k, 2], v, buf.omega)
         assert speed > buf.target[k] - disagreement
     before = np.concatenate([v.ravel(), buf.omega.ravel()])
-    contact._iterate(model, x, nc, scene.dt, buf, v, L, np.inf, contact.IDLE_MARGIN)  # one sweep
+    one_sweep = np.inf
+    gauss_seidel.iterate(model, x, nc, scene.dt, buf, v, L, one_sweep, settings.IDLE_MARGIN)
     after = np.concatenate([v.ravel(), buf.omega.ravel()])
     # |dv| + bound radius |d omega|, as the stopping test measures it
     assert np.abs(after - before).max() * (1.0 + model.bound_radius[0]) < tolerance
@@ -125,14 +146,14 @@ def _settled(name, friction=None):
     if friction is not None:
         model = model._replace(friction=friction)
     x, q, v, L = initial_state(model, scene)
-    buf = contact.contact_buffers(len(scene.bodies), 64, 16)
-    contact.frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
-    nc = contact.find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
+    buf = buffers.contact_buffers(len(scene.bodies), 64, 16)
+    frames.frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
+    nc = candidates.find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
     buf.acting[:nc] = True
-    contact._assemble(model, x, nc, contact.TOUCH_TOLERANCE, buf, 0)
+    assemble(model, x, nc, settings.TOUCH_TOLERANCE, buf, 0)
     buf.target[:nc] = 0.0
     v += scene.dt * model.gravity
-    assert contact._iterate(model, x, nc, scene.dt, buf, v, L, 1e-14, contact.IDLE_MARGIN)[1]
+    assert gauss_seidel.iterate(model, x, nc, scene.dt, buf, v, L, 1e-14, settings.IDLE_MARGIN)[1]
     return model, nc, buf, v, L
 
 
@@ -141,7 +162,7 @@ def _row_speeds(buf, n_rows, v):
     rows = buf.rows[:n_rows]
     return np.array(
         [
-            contact._speed(buf.jac[k, d], buf.cands[k, 0], buf.cands[k, 2], v, buf.omega)
+            row_speed(buf.jac[k, d], buf.cands[k, 0], buf.cands[k, 2], v, buf.omega)
             - (buf.target[k] if d == 0 else 0.0)
             for k, d in rows
         ]
@@ -156,15 +177,15 @@ def test_subspace_step_meets_consistent_targets_at_once():
     1e-12 allowed). Without friction the four normal rows are fewer than the body's 6
     unknowns: no subspace step."""
     model, nc, buf, v, L = _settled("resting_cube", friction=0.0)
-    assert contact._subspace_rows(model, nc, buf) == (4, -1)
+    assert subspace.subspace_rows(model, nc, buf) == (4, -1)
     model, nc, buf, v, L = _settled("resting_cube")
-    n_rows, n_bodies = contact._subspace_rows(model, nc, buf)
+    n_rows, n_bodies = subspace.subspace_rows(model, nc, buf)
     assert (n_rows, n_bodies) == (12, 1)
     v[0] += (1e-6, -2e-6, 1e-6)
     L[0] += model.inertia0[0] @ np.array([1e-6, 1e-6, 0.0])
-    contact.frames_into(model, np.array([[1.0, 0.0, 0.0, 0.0]]), L, buf.rot, buf.inv, buf.omega)
+    frames.frames_into(model, np.array([[1.0, 0.0, 0.0, 0.0]]), L, buf.rot, buf.inv, buf.omega)
     assert np.abs(_row_speeds(buf, n_rows, v)).max() > 1e-7
-    assert contact._subspace_step(model, nc, buf, v, L)
+    assert subspace.subspace_step(model, nc, buf, v, L)
     assert np.abs(_row_speeds(buf, n_rows, v)).max() < 1e-12
     assert (buf.lam[:nc, 0] > 0.0).all()
 
@@ -192,7 +213,7 @@ def test_subspace_step_is_the_least_squares_impulse_change():
     regularisation's bias."""
     model, nc, buf, v, L = _settled("cube_stack")
     v[-1, 0] += 1e-6
-    n_rows, n_bodies = contact._subspace_rows(model, nc, buf)
+    n_rows, n_bodies = subspace.subspace_rows(model, nc, buf)
     assert (n_rows, n_bodies) == (60, 5)  # 20 contacts, all sticking
     jac, m_inv = _subspace_system(model, buf, n_rows)
     error = -_row_speeds(buf, n_rows, v)
@@ -200,8 +221,8 @@ def test_subspace_step_is_the_least_squares_impulse_change():
     expected = np.linalg.pinv(delassus, rcond=1e-10) @ error
     eigenvalues = np.linalg.eigvalsh(delassus)
     smallest = eigenvalues[eigenvalues > 1e-10 * eigenvalues.max()].min()
-    eps = contact.SUBSPACE_REGULARIZATION * buf.kn[:nc].max()
-    assert contact._subspace_step(model, nc, buf, v, L)
+    eps = settings.SUBSPACE_REGULARIZATION * buf.kn[:nc].max()
+    assert subspace.subspace_step(model, nc, buf, v, L)
     # each of the step's two solves shrinks the component along eigenvalue s by eps / (s + eps)
     # (Tikhonov): 2 eps / smallest in all, here 1.2e-5 (measured 1.27e-5); twice that allowed
     bias = 4.0 * eps / smallest
@@ -218,11 +239,11 @@ def test_subspace_step_is_its_regularised_solve_to_rounding(name):
     mp = pytest.importorskip("mpmath")
     model, nc, buf, v, L = _settled(name)
     v[-1, 0] += 1e-6
-    n_rows, _ = contact._subspace_rows(model, nc, buf)
+    n_rows, _ = subspace.subspace_rows(model, nc, buf)
     jac, m_inv = _subspace_system(model, buf, n_rows)
     error = -_row_speeds(buf, n_rows, v)
-    eps = float(contact.SUBSPACE_REGULARIZATION * buf.kn[:nc].max())
-    assert contact._subspace_step(model, nc, buf, v, L)
+    eps = float(settings.SUBSPACE_REGULARIZATION * buf.kn[:nc].max())
+    assert subspace.subspace_step(model, nc, buf, v, L)
     mp.mp.dps = 40
     j, m_inv, e = (mp.matrix(a.tolist()) for a in (jac, m_inv, error))
     du1 = mp.lu_solve(eps * m_inv**-1 + j.T * j, j.T * e)
@@ -270,13 +291,13 @@ def test_without_the_restart_the_flat_landing_cycles_and_turns(monkeypatch):
     scene, dt = CATALOG["dropped_cube"], 0.02
     model = model_from_scene(scene)
     x, q, v, L = initial_state(model, scene)
-    buf = contact.contact_buffers(1, 16, 4)
+    buf = buffers.contact_buffers(1, 16, 4)
     threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * dt
     w = []
     for _ in range(scene.steps(dt, scene.duration)):
         assert rigid_step.py_func(model, INTEGRATORS["euler"], x, q, v, L, dt, threshold, buf) == 0
-        w.append(contact.world_omega(model, q[0], L[0], 0))
-    assert buf.solver[2] > 0
+        w.append(frames.world_omega(model, q[0], L[0], 0))
+    assert buf.solver[STAT_UNCONVERGED] > 0
     assert _off_axis_turn(w) > SYMMETRY_TOLERANCE
 
 
@@ -307,7 +328,7 @@ def _history(*steps):
 def test_warm_start_continues_a_steady_trend_within_the_bounds(history, expected):
     model = model_from_scene(CATALOG["dropped_cube"])  # mu = 0.5
     assert model.friction == 0.5
-    start = contact._trend(model, _history(*history), 0, 1.0, contact.VELOCITY_TOLERANCE)
+    start = warm_start.trend(model, _history(*history), 0, 1.0, settings.VELOCITY_TOLERANCE)
     np.testing.assert_allclose(start, expected, rtol=1e-15)
 
 
@@ -315,11 +336,11 @@ def test_warm_start_does_not_extrapolate_rounding_jitter():
     """A steady trend whose changes move a speed by less than TREND_NOISE tolerances is left
     alone: rounding, not motion."""
     model = model_from_scene(CATALOG["dropped_cube"])
-    tolerance = contact.VELOCITY_TOLERANCE
-    change = 0.5 * contact.TREND_NOISE * tolerance  # with kn = 1, a speed change of this much
+    tolerance = settings.VELOCITY_TOLERANCE
+    change = 0.5 * settings.TREND_NOISE * tolerance  # with kn = 1, a speed change of this much
     history = _history((1.0 + 2 * change, 0, 0), (1.0 + change, 0, 0), (1.0, 0, 0))
-    assert contact._trend(model, history, 0, 1.0, tolerance) == (1.0 + 2 * change, 0.0, 0.0)
-    assert contact._trend(model, history, 0, 4.0, tolerance)[0] == 1.0 + 3 * change
+    assert warm_start.trend(model, history, 0, 1.0, tolerance) == (1.0 + 2 * change, 0.0, 0.0)
+    assert warm_start.trend(model, history, 0, 4.0, tolerance)[0] == 1.0 + 3 * change
 
 
 class _RainStep(NamedTuple):
@@ -328,7 +349,7 @@ class _RainStep(NamedTuple):
 
     model: object
     state: list
-    buf: contact.ContactBuffers
+    buf: buffers.ContactBuffers
     after: list
     counted: np.ndarray
 
@@ -339,9 +360,9 @@ def _first_rain_step_counting(counter):
     model = model_from_scene(scene)
     x, q, v, L = initial_state(model, scene)
     nb = len(scene.bodies)
-    buf = contact.contact_buffers(nb, 64 * nb, nb**2)
+    buf = buffers.contact_buffers(nb, 64 * nb, nb**2)
     for _ in range(scene.steps(scene.dt, scene.duration)):
-        before = [a.copy() for a in (x, q, v, L)], contact.ContactBuffers(*(a.copy() for a in buf))
+        before = [a.copy() for a in (x, q, v, L)], buffers.ContactBuffers(*(a.copy() for a in buf))
         assert _rain_step(model, (x, q, v, L), buf) == 0
         if buf.solver[counter] > before[1].solver[counter]:
             after = [a.copy() for a in (x, q, v, L)]
@@ -357,21 +378,25 @@ def _rain_step(model, state, buf, step=rigid_step):
     return step(model, INTEGRATORS["euler"], *state, dt, threshold, buf)
 
 
-def _python_solves(monkeypatch, **settings):
-    """Make the contact solves run the kernels' Python code, which reads the contact module's
-    `settings` as changed here (compiled code has its constants built in)."""
-    for name, value in settings.items():
-        monkeypatch.setattr(contact, name, value)
-    for name in ("_iterate", "_solve"):
-        monkeypatch.setattr(contact, name, getattr(contact, name).py_func)
+def _python_solves(monkeypatch, **changed):
+    """Make the contact solves run the kernels' Python code, which reads the solver settings
+    `changed` here in the modules that use them (compiled code has its constants built in)."""
+    for name, value in changed.items():
+        users = [m for m in (gauss_seidel, contact_step) if hasattr(m, name)]
+        assert users, f"no solve reads {name}"
+        for module in users:
+            monkeypatch.setattr(module, name, value)
+    monkeypatch.setattr(gauss_seidel, "_follow_rate", gauss_seidel._follow_rate.py_func)
+    monkeypatch.setattr(contact_step, "iterate", gauss_seidel.iterate.py_func)
+    monkeypatch.setattr(contact_step, "solve", contact_step.solve.py_func)
     for name in ("before_drift", "after_drift"):
-        monkeypatch.setattr(rigid, name, getattr(contact, name).py_func)
+        monkeypatch.setattr(rigid, name, getattr(contact_step, name).py_func)
 
 
-def _rerun_in_python(monkeypatch, step, **settings):
+def _rerun_in_python(monkeypatch, step, **changed):
     """Step `step` again from its state (in place), through the kernels' Python code with the
-    contact module's `settings` changed; returns what the solver counted."""
-    _python_solves(monkeypatch, **settings)
+    solver settings `changed`; returns what the solver counted."""
+    _python_solves(monkeypatch, **changed)
     solver = step.buf.solver.copy()
     _rain_step(step.model, step.state, step.buf, rigid_step.py_func)
     return step.buf.solver - solver
@@ -379,7 +404,7 @@ def _rerun_in_python(monkeypatch, step, **settings):
 
 def _copy(step):
     """`step` with its state and buffers copied (a rerun changes them in place)."""
-    buf = contact.ContactBuffers(*(a.copy() for a in step.buf))
+    buf = buffers.ContactBuffers(*(a.copy() for a in step.buf))
     return step._replace(state=[a.copy() for a in step.state], buf=buf)
 
 
@@ -390,16 +415,16 @@ def test_a_solve_stopped_unconverged_is_one_the_iteration_limit_would_not_have_s
     stall rule would have stopped it and before MAX_ITERATIONS, and is one that cycles: the same
     step, its solves run again from the same state without the rules (the kernels' Python code,
     CYCLE_START and STALL_SWEEPS out of reach), still ends with a solve at MAX_ITERATIONS."""
-    step = _first_rain_step_counting(2)
-    solves, sweeps = step.counted[:2].tolist()
-    assert sweeps < solves * contact.MAX_ITERATIONS  # stopped early
+    step = _first_rain_step_counting(STAT_UNCONVERGED)
+    solves, sweeps = step.counted[[STAT_SOLVES, STAT_SWEEPS]].tolist()
+    assert sweeps < solves * settings.MAX_ITERATIONS  # stopped early
     stall_rule_only = _rerun_in_python(monkeypatch, _copy(step), CYCLE_START=10**9)
-    assert stall_rule_only[2] > 0
-    assert sweeps < stall_rule_only[1] < solves * contact.MAX_ITERATIONS
+    assert stall_rule_only[STAT_UNCONVERGED] > 0
+    assert sweeps < stall_rule_only[STAT_SWEEPS] < solves * settings.MAX_ITERATIONS
     monkeypatch.undo()
     without_rules = _rerun_in_python(monkeypatch, step, STALL_SWEEPS=10**9, CYCLE_START=10**9)
-    assert without_rules[2] > 0
-    assert without_rules[1] >= contact.MAX_ITERATIONS
+    assert without_rules[STAT_UNCONVERGED] > 0
+    assert without_rules[STAT_SWEEPS] >= settings.MAX_ITERATIONS
 
 
 def test_the_cycle_rule_flags_a_repeating_velocity_change_and_not_a_shrinking_one():
@@ -407,15 +432,15 @@ def test_the_cycle_rule_flags_a_repeating_velocity_change_and_not_a_shrinking_on
     repeat, at the 9th sweep); changes shrinking by 0.9 a sweep, or by more than
     CYCLE_AGREEMENT, never are; shrinking by less counts as repeating (a change that takes
     over 690 sweeps to halve: the stall rule stops it after STALL_SWEEPS)."""
-    record = np.zeros((2, contact.CYCLE_MAX_PERIOD))
+    record = np.zeros((2, settings.CYCLE_MAX_PERIOD))
     period = (0.5, 0.3, 0.1)
-    flags = [contact._cycles(record, n, period[n % 3]) for n in range(12)]
+    flags = [gauss_seidel.cycles(record, n, period[n % 3]) for n in range(12)]
     assert flags.index(True) == 8
-    for rate in (0.9, 1.0 - 2.0 * contact.CYCLE_AGREEMENT):
-        assert not any(contact._cycles(record, n, rate**n) for n in range(200))
-    slow = 1.0 - 0.5 * contact.CYCLE_AGREEMENT
-    flags = [contact._cycles(record, n, slow**n) for n in range(20)]
-    assert flags.index(True) == contact.CYCLE_MIN_SWEEPS
+    for rate in (0.9, 1.0 - 2.0 * settings.CYCLE_AGREEMENT):
+        assert not any(gauss_seidel.cycles(record, n, rate**n) for n in range(200))
+    slow = 1.0 - 0.5 * settings.CYCLE_AGREEMENT
+    flags = [gauss_seidel.cycles(record, n, slow**n) for n in range(20)]
+    assert flags.index(True) == settings.CYCLE_MIN_SWEEPS
 
 
 # Both solves stop once a sweep changes no speed by the solver tolerance; Gauss-Seidel at a
@@ -424,21 +449,21 @@ SAME_MOTION_TOLERANCES = 50
 
 
 def test_an_extrapolated_solve_ends_where_the_sweeps_alone_would(monkeypatch):
-    """`cube_rain_8`'s first step with an extrapolation (`_extrapolate`), run again from the
-    same state without extrapolating (the kernels' Python code, RATE_MAX 0): both converge, to
-    the same velocities within SAME_MOTION_TOLERANCES solver tolerances, the extrapolated one
-    in fewer sweeps."""
-    step = _first_rain_step_counting(4)
-    assert step.counted[2] == 0  # converged
+    """`cube_rain_8`'s first step with an extrapolation (`gauss_seidel.extrapolate`), run again
+    from the same state without extrapolating (the kernels' Python code, RATE_MAX 0): both
+    converge, to the same velocities within SAME_MOTION_TOLERANCES solver tolerances, the
+    extrapolated one in fewer sweeps."""
+    step = _first_rain_step_counting(STAT_EXTRAPOLATIONS)
+    assert step.counted[STAT_UNCONVERGED] == 0  # converged
     plain = _rerun_in_python(monkeypatch, step, RATE_MAX=0.0)
-    assert plain[4] == 0 and plain[2] == 0
-    assert step.counted[1] < plain[1]
+    assert plain[STAT_EXTRAPOLATIONS] == 0 and plain[STAT_UNCONVERGED] == 0
+    assert step.counted[STAT_SWEEPS] < plain[STAT_SWEEPS]
     model, v = step.model, step.state[2]
-    tolerance = SAME_MOTION_TOLERANCES * contact.solver_tolerance(CATALOG["cube_rain_8"].dt)
+    tolerance = SAME_MOTION_TOLERANCES * settings.solver_tolerance(CATALOG["cube_rain_8"].dt)
     np.testing.assert_allclose(step.after[2], v, rtol=0, atol=tolerance)
     for b in range(len(v)):  # turning, at the speed of the body's farthest surface point
         w, w_plain = (
-            model.bound_radius[b] * np.array(contact.world_omega(model, s[1][b], s[3][b], b))
+            model.bound_radius[b] * np.array(frames.world_omega(model, s[1][b], s[3][b], b))
             for s in (step.after, step.state)
         )
         np.testing.assert_allclose(w, w_plain, rtol=0, atol=tolerance)
@@ -452,27 +477,28 @@ def test_a_trusted_rate_extrapolates_sooner_to_the_same_motion():
     scene = CATALOG["dropped_cube"]
     model = model_from_scene(scene)
     state = initial_state(model, scene)
-    buf = contact.contact_buffers(1, 64, 4)
+    buf = buffers.contact_buffers(1, 64, 4)
     threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * scene.dt
     for _ in range(scene.steps(scene.dt, scene.duration)):
-        before = [a.copy() for a in state], contact.ContactBuffers(*(a.copy() for a in buf))
+        before = [a.copy() for a in state], buffers.ContactBuffers(*(a.copy() for a in buf))
         assert rigid_step(model, INTEGRATORS["euler"], *state, scene.dt, threshold, buf) == 0
-        if before[1].rates[0] > 0.0 and buf.solver[4] > before[1].solver[4]:
+        trusted = before[1].rates[PRE_DRIFT] > 0.0
+        if trusted and buf.solver[STAT_EXTRAPOLATIONS] > before[1].solver[STAT_EXTRAPOLATIONS]:
             break
     else:
         pytest.fail("no step extrapolated with a trusted rate")
-    assert buf.solver[2] == before[1].solver[2]  # converged
-    untrusted = contact.ContactBuffers(*(a.copy() for a in before[1]))
+    assert buf.solver[STAT_UNCONVERGED] == before[1].solver[STAT_UNCONVERGED]  # converged
+    untrusted = buffers.ContactBuffers(*(a.copy() for a in before[1]))
     untrusted.rates[:] = 0.0
     again = [a.copy() for a in before[0]]
     assert rigid_step(model, INTEGRATORS["euler"], *again, scene.dt, threshold, untrusted) == 0
-    assert untrusted.solver[2] == before[1].solver[2]
-    sweeps = buf.solver[1] - before[1].solver[1]
-    assert sweeps < untrusted.solver[1] - before[1].solver[1]
-    tolerance = SAME_MOTION_TOLERANCES * contact.solver_tolerance(scene.dt)
+    assert untrusted.solver[STAT_UNCONVERGED] == before[1].solver[STAT_UNCONVERGED]
+    sweeps = buf.solver[STAT_SWEEPS] - before[1].solver[STAT_SWEEPS]
+    assert sweeps < untrusted.solver[STAT_SWEEPS] - before[1].solver[STAT_SWEEPS]
+    tolerance = SAME_MOTION_TOLERANCES * settings.solver_tolerance(scene.dt)
     np.testing.assert_allclose(state[2], again[2], rtol=0, atol=tolerance)
     w, w_again = (
-        model.bound_radius[0] * np.array(contact.world_omega(model, s[1][0], s[3][0], 0))
+        model.bound_radius[0] * np.array(frames.world_omega(model, s[1][0], s[3][0], 0))
         for s in (state, again)
     )
     np.testing.assert_allclose(w, w_again, rtol=0, atol=tolerance)
@@ -504,18 +530,19 @@ def test_a_contact_on_standby_wakes_when_the_solve_swings_its_body_into_it():
     )
     model = model_from_scene(scene)
     x, q, v, L = initial_state(model, scene)
-    buf = contact.contact_buffers(1, 16, 4)
-    contact.frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
-    contact.reach_into(model, v, buf.omega, dt, (0.0, 0.0, 0.0), buf.reach)
+    buf = buffers.contact_buffers(1, 16, 4)
+    frames.frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
+    frames.reach_into(model, v, buf.omega, dt, (0.0, 0.0, 0.0), buf.reach)
     assert buf.reach[0] < lift  # the far end is beyond the step's reach at its start
     assert rigid_step(model, INTEGRATORS["euler"], x, q, v, L, dt, 0.0, buf) == 0
     far = [i for i, row in enumerate(rows) if row[0] > 0 and row[2] == radius + lift]
-    n = buf.counts[0]  # the contacts that pushed before the drift, by key: particle i's is i
+    # the contacts that pushed before the drift, by key: particle i's is i
+    n = buf.counts[COUNT_PRE_WARM]
     pushed = dict(zip(buf.pre_keys[:n].tolist(), buf.pre_lam[:n, 0, 0], strict=True))
     assert all(pushed.get(i, 0.0) > 0.0 for i in far)
     rotation = np.reshape(qmatrix(tuple(q[0])), (3, 3))
     gaps = (x[0] + model.offsets @ rotation.T)[:, 2] - radius
-    omega = np.linalg.norm(contact.world_omega(model, tuple(q[0]), tuple(L[0]), 0))
+    omega = np.linalg.norm(frames.world_omega(model, tuple(q[0]), tuple(L[0]), 0))
     overshoot = model.bound_radius[0] * (omega * dt) ** 2 / 2  # the drift's second order
     assert gaps[far].min() > -overshoot
     assert overshoot < 0.1 * (7.8 - lift / dt) * dt  # a tenth of a missed contact's 1.8 cm

@@ -23,25 +23,28 @@ from scipy.spatial.transform import Rotation
 from cases import CATALOG, Body, Contact, Scene
 from cases.builders import box_corners, box_walls
 from comparators.reference import model_from_scene
-from reference_sim.contact import (
+from reference_sim.contact.buffers import (
+    COUNT_KEPT_ROWS,
+    COUNT_PAIRS,
+    COUNT_POST_WARM,
+    POST_DRIFT,
+    STAT_SWEEPS,
+    ContactBuffers,
+    contact_buffers,
+)
+from reference_sim.contact.candidates import all_pairs, find_candidates_into
+from reference_sim.contact.frames import frames_into, reach_into
+from reference_sim.contact.gauss_seidel import iterate
+from reference_sim.contact.grid import _bin, grid_pairs
+from reference_sim.contact.rows import assemble
+from reference_sim.contact.settings import (
     GRID_CELLS_PER_BODY,
     GRID_MIN_BODIES,
     IDLE_MARGIN,
     TOUCH_TOLERANCE,
-    ContactBuffers,
-    _assemble,
-    _bin,
-    _iterate,
-    _pushes_nothing,
-    _solve,
-    all_pairs,
-    contact_buffers,
-    find_candidates_into,
-    frames_into,
-    grid_pairs,
-    reach_into,
     solver_tolerance,
 )
+from reference_sim.contact.step import _pushes_nothing, solve
 from reference_sim.rigid import BOUNCE_STEPS, INTEGRATORS, POSE_ROUNDING, rigid_step, run_rigid
 
 # Free flight: one step of either path from the same state. They differ in the order of their
@@ -224,7 +227,7 @@ def test_grid_and_pairwise_steps_are_bit_equal(integrator):
                 reach_into(model, v, buf.omega, scene.dt, kick, reach)
                 pairs = grid_pairs(model, x, reach)
                 buf.pairs[: len(pairs)] = pairs
-                buf.counts[2] = len(pairs)
+                buf.counts[COUNT_PAIRS] = len(pairs)
                 touched += len(pairs)
             assert rigid_step(model, code, x, q, v, L, scene.dt, threshold, buf) == 0
         results.append((x, q, v, L))
@@ -255,15 +258,15 @@ def _assembled_afresh(model, x, buf, n):
     fresh = ContactBuffers(*(a.copy() for a in buf))
     fresh.acting[:n] = True
     fresh.made[:] = -1
-    _assemble(model, x, n, TOUCH_TOLERANCE, fresh, 0)
+    assemble(model, x, n, TOUCH_TOLERANCE, fresh, 0)
     return fresh
 
 
 def _assert_rows_hold_the_pose(model, x, buf):
-    """The rows a step leaves for the next one to keep (those below counts[3] that hold a
-    contact) are what assembling that contact afresh at the bodies' pose gives, to within the
+    """The rows a step leaves for the next one to keep (those below counts[COUNT_KEPT_ROWS] that
+    hold a contact) are what assembling that contact afresh at the bodies' pose gives, to within the
     rounding of the pose they were assembled at (ROW_RTOL, ROW_ATOL)."""
-    n = buf.counts[3]
+    n = buf.counts[COUNT_KEPT_ROWS]
     fresh = _assembled_afresh(model, x, buf, n)
     held = buf.made[:n] == buf.keys[:n]
     for field in ROW_FIELDS:
@@ -295,10 +298,10 @@ def test_reused_contact_rows_are_fresh_ones_to_rounding(case, integrator):
         buf = contact_buffers(nb, 64 * nb, nb * nb)  # room for every step: never grown
         for _ in range(n_steps):
             if reuse:
-                reused += buf.counts[3] > 0
+                reused += buf.counts[COUNT_KEPT_ROWS] > 0
                 since = buf.pose.copy()  # where the kept rows were assembled
             else:
-                buf.counts[3] = 0  # the first assembly keeps no row: every one afresh
+                buf.counts[COUNT_KEPT_ROWS] = 0  # the first assembly keeps no row: every one afresh
             assert (
                 rigid_step(model, INTEGRATORS[integrator], x, q, v, L, scene.dt, threshold, buf)
                 == 0
@@ -318,8 +321,9 @@ def test_reused_contact_rows_are_fresh_ones_to_rounding(case, integrator):
 
 def test_rows_past_the_last_assembly_are_assembled_afresh():
     """An assembly keeps only rows below `kept`, the count the last one made at the current
-    pose (`counts[3]`). A row past them (the last step had fewer candidates) may hold the same
-    contact as an older step's row, assembled at that step's pose: it is assembled afresh."""
+    pose (`counts[COUNT_KEPT_ROWS]`). A row past them (the last step had fewer candidates) may
+    hold the same contact as an older step's row, assembled at that step's pose: it is assembled
+    afresh."""
     scene = CATALOG["resting_cube"]
     model, state = _state(scene)
     x, q, v, L = (a.copy() for a in state)
@@ -328,15 +332,15 @@ def test_rows_past_the_last_assembly_are_assembled_afresh():
     nc = find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
     assert nc >= 2  # the corners on the floor
     buf.acting[:nc] = True
-    _assemble(model, x, nc, TOUCH_TOLERANCE, buf, 0)  # every row, at this pose
+    assemble(model, x, nc, TOUCH_TOLERANCE, buf, 0)  # every row, at this pose
     # the cube moves; a step assembles its one candidate; the next has them all again, with the
     # keys they had before
     x[0, 2] += 0.01
     q[0] = q[0] + np.array([0.0, 0.01, 0.0, 0.0])
     q[0] /= np.linalg.norm(q[0])
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
-    _assemble(model, x, 1, TOUCH_TOLERANCE, buf, 0)
-    _assemble(model, x, nc, TOUCH_TOLERANCE, buf, 1)
+    assemble(model, x, 1, TOUCH_TOLERANCE, buf, 0)
+    assemble(model, x, nc, TOUCH_TOLERANCE, buf, 1)
     fresh = _assembled_afresh(model, x, buf, nc)
     for field in ROW_FIELDS:
         np.testing.assert_array_equal(getattr(buf, field)[:nc], getattr(fresh, field)[:nc])
@@ -360,7 +364,7 @@ def test_sweeps_that_skip_idle_contacts_end_where_full_sweeps_end(steps):
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
     nc = find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
     buf.acting[:nc] = True
-    _assemble(model, x, nc, TOUCH_TOLERANCE, buf, 0)
+    assemble(model, x, nc, TOUCH_TOLERANCE, buf, 0)
     gap = buf.gap[:nc]
     buf.target[:nc] = np.where(gap >= 0.0, -gap / scene.dt, 0.0)
     buf.lam[:nc] = 0.0
@@ -369,7 +373,7 @@ def test_sweeps_that_skip_idle_contacts_end_where_full_sweeps_end(steps):
     for margin in (IDLE_MARGIN, np.inf):  # np.inf: no contact is idle
         work = ContactBuffers(*(a.copy() for a in buf))
         vv, LL = v.copy(), L.copy()
-        sweeps, _ = _iterate(
+        sweeps, _ = iterate(
             model, x, nc, scene.dt, work, vv, LL, solver_tolerance(scene.dt), margin
         )
         results.append((vv, LL, work.lam[:nc], work.omega, sweeps))
@@ -399,16 +403,16 @@ def test_a_skipped_post_drift_solve_would_push_nothing(case, integrator):
     n_steps = min(1000, round(scene.duration / scene.dt))
     skipped = 0
     for _ in range(n_steps):
-        remembered = buf.counts[1]
+        remembered = buf.counts[COUNT_POST_WARM]
         assert rigid_step(model, INTEGRATORS[integrator], x, q, v, L, scene.dt, threshold, buf) == 0
-        nc = buf.counts[3]  # the candidates after the drift, assembled at this pose
+        nc = buf.counts[COUNT_KEPT_ROWS]  # the candidates after the drift, assembled at this pose
         if nc == 0 or not _pushes_nothing(model, nc, buf, v):
             continue
         skipped += remembered == 0
         work = ContactBuffers(*(a.copy() for a in buf))
         vv, LL = v.copy(), L.copy()
-        _solve(model, x, vv, LL, nc, scene.dt, work, work.post_keys, work.post_lam, 0, 1)
-        assert work.solver[1] - buf.solver[1] == 1  # one sweep
+        solve(model, x, vv, LL, nc, scene.dt, work, work.post_keys, work.post_lam, 0, POST_DRIFT)
+        assert work.solver[STAT_SWEEPS] - buf.solver[STAT_SWEEPS] == 1  # one sweep
         assert not work.lam[:nc].any()
         np.testing.assert_array_equal(vv, v)
         np.testing.assert_array_equal(LL, L)

@@ -9,7 +9,7 @@ import pytest
 from cases import CATALOG
 from comparators import ENGINES, run
 from comparators.outcomes import outcomes, verdict
-from reference_sim.contact import solver_tolerance
+from reference_sim.contact.settings import solver_tolerance
 
 RIGID = ("euler", "splitting", "rk4")
 HARD = sorted(name for name, scene in CATALOG.items() if "hard" in scene.tags)

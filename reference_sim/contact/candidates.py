@@ -1,0 +1,119 @@
+"""Broad phase: the contact candidates of a step, particle-plane pairs and particle pairs of
+different bodies whose gap could close within the step. Particles of one body never pair."""
+
+import math
+
+import numpy as np
+
+from reference_sim.contact.buffers import COUNT_PAIRS
+from reference_sim.contact.frames import particle, reach_into
+from reference_sim.jit import compiled, inlined_kernel, kernel
+from reference_sim.vec3 import dot, row, sub
+
+
+@kernel
+def near(model, x, reach, a, b):
+    """Whether the bounding spheres of bodies a and b can meet within the step."""
+    d = sub(row(x, a), row(x, b))
+    apart = math.sqrt(dot(d, d)) - model.bound_radius[a] - model.bound_radius[b]
+    return not apart > reach[a] + reach[b]
+
+
+@kernel
+def all_pairs_into(model, x, reach, pairs):
+    """Every body pair a < b that can meet, tested pair by pair, in order, written to `pairs`
+    while it has room; returns how many there are."""
+    n = 0
+    for a in range(x.shape[0]):
+        for b in range(a + 1, x.shape[0]):
+            if near(model, x, reach, a, b):
+                if n < pairs.shape[0]:
+                    pairs[n, 0], pairs[n, 1] = a, b
+                n += 1
+    return n
+
+
+@compiled
+def all_pairs(model, x, reach):
+    """(P, 2) body pairs a < b whose bounding spheres can meet within the step (`reach`:
+    `reach_into`), sorted, tested pair by pair."""
+    pairs = np.empty((2 * x.shape[0] + 16, 2), dtype=np.int64)
+    n = all_pairs_into(model, x, reach, pairs)
+    if n > pairs.shape[0]:
+        pairs = np.empty((n, 2), dtype=np.int64)
+        all_pairs_into(model, x, reach, pairs)
+    return pairs[:n]
+
+
+@kernel
+def _plane_candidates_into(model, x, rot, reach, out, keys):
+    """Particle-plane candidates written to `out` (and their keys to `keys`) while it has room,
+    in increasing key order; returns how many there are."""
+    npl = model.plane_points.shape[0]
+    k = 0
+    for b in range(x.shape[0]):
+        # every particle's gap is at least `far`: none can come within its reach + radius
+        near_plane = False
+        for j in range(npl):
+            n = row(model.plane_normals, j)
+            far = dot(n, sub(row(x, b), row(model.plane_points, j))) - model.bound_radius[b]
+            near_plane = near_plane or far < reach[b] + model.bound_radius[b]
+        if not near_plane:
+            continue
+        for i in range(model.body_start[b], model.body_start[b + 1]):
+            p = particle(model, x, rot, b, i)
+            for j in range(npl):
+                gap = dot(row(model.plane_normals, j), sub(p, row(model.plane_points, j)))
+                if gap - model.radius[i] < reach[b] + model.radius[i]:
+                    if k < out.shape[0]:
+                        out[k, 0], out[k, 1], out[k, 2], out[k, 3] = b, i, -1, j
+                        keys[k] = i * npl + j
+                    k += 1
+    return k
+
+
+@kernel
+def _pair_candidates_into(model, x, rot, reach, pairs, n_pairs, out, keys, k):
+    """Particle-particle candidates of the first `n_pairs` body `pairs`, written to `out` and
+    `keys` from row k while there is room, in increasing key order; returns k plus how many."""
+    npt = model.offsets.shape[0]
+    nb = model.body_mass.shape[0]
+    base = npt * model.plane_points.shape[0]
+    for p in range(n_pairs):
+        a, b = pairs[p, 0], pairs[p, 1]
+        for i in range(model.body_start[a], model.body_start[a + 1]):
+            pa = particle(model, x, rot, a, i)
+            for j in range(model.body_start[b], model.body_start[b + 1]):
+                dd = sub(pa, particle(model, x, rot, b, j))
+                gap = math.sqrt(dot(dd, dd)) - model.radius[i] - model.radius[j]
+                if gap < reach[a] + reach[b] + min(model.radius[i], model.radius[j]):
+                    if k < out.shape[0]:
+                        out[k, 0], out[k, 1], out[k, 2], out[k, 3] = a, i, b, j
+                        # pairs come sorted by (a, b): the keys increase
+                        keys[k] = base + ((a * nb + b) * npt + i) * npt + j
+                    k += 1
+    return k
+
+
+@inlined_kernel
+def find_candidates_into(model, x, v, dt, kick, buf):
+    """The step's contact candidates into `buf`: rows (body a, particle i, body b or -1,
+    particle j or plane index) of the contacts that could touch within the step, given the
+    velocity change `kick` the integrator makes before contact. A particle radius of slack on
+    top of the reach keeps contacts that rotation brings a little closer than the linear
+    estimate. Returns their count, which may exceed the capacity (then nothing else is valid),
+    or minus the number of body pairs if those exceed theirs.
+
+    Body pairs: `buf.pairs[:buf.counts[COUNT_PAIRS]]` if the caller found them (`grid_pairs`),
+    else found here pair by pair. Needs `buf.rot` and `buf.omega`.
+    """
+    reach_into(model, v, buf.omega, dt, kick, buf.reach)
+    n_pairs = buf.counts[COUNT_PAIRS]
+    if n_pairs < 0:
+        n_pairs = all_pairs_into(model, x, buf.reach, buf.pairs)
+        if n_pairs > buf.pairs.shape[0]:
+            return -n_pairs
+    k = _plane_candidates_into(model, x, buf.rot, buf.reach, buf.cands, buf.keys)
+    return _pair_candidates_into(
+        model, x, buf.rot, buf.reach, buf.pairs, n_pairs, buf.cands, buf.keys, k
+    )

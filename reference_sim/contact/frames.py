@@ -1,0 +1,48 @@
+"""The bodies as contact sees them at a step's start: rotation matrices, world inverse inertias
+and angular velocities, particle positions, and how far each body can move in the step."""
+
+import math
+
+from reference_sim.jit import inlined_kernel, kernel
+from reference_sim.quaternion import qmatrix
+from reference_sim.vec3 import add, conjugate_by, dot, flat, mat, mat_t_vec, mat_vec, row, vec
+
+
+@kernel
+def world_omega(model, q, L, b):
+    """World angular velocity omega = R I0^-1 R^T L of body b (q, L: that body's rows), a tuple."""
+    r = qmatrix(q)
+    return mat_vec(r, mat_vec(mat(model.inertia0_inv, b), mat_t_vec(r, L)))
+
+
+@inlined_kernel
+def frames_into(model, q, L, rot, inv, omega):
+    """Each body's rotation matrix, world inverse inertia (B, 9) and world omega (B, 3)."""
+    for b in range(q.shape[0]):
+        r = qmatrix((q[b, 0], q[b, 1], q[b, 2], q[b, 3]))
+        i_world = conjugate_by(r, mat(model.inertia0_inv, b))
+        w = mat_vec(i_world, row(L, b))
+        for k in range(9):
+            rot[b, k] = r[k]
+            inv[b, k] = i_world[k]
+        omega[b, 0], omega[b, 1], omega[b, 2] = w
+
+
+@kernel
+def particle(model, x, rot, b, i):
+    """World position of particle i of body b."""
+    return add(row(x, b), mat_vec(flat(rot, b), row(model.offsets, i)))
+
+
+@kernel
+def reach_into(model, v, omega, dt, kick, reach):
+    """How far (m) any surface point of each body can move in a step: linear speed (after the
+    velocity change `kick` the integrator makes before contact) plus rotational speed, plus the
+    step's gravity."""
+    fall = dt * dt * math.sqrt(dot(vec(model.gravity), vec(model.gravity)))
+    for b in range(v.shape[0]):
+        vb = add(row(v, b), kick)
+        speed = math.sqrt(dot(vb, vb)) + model.bound_radius[b] * math.sqrt(
+            dot(row(omega, b), row(omega, b))
+        )
+        reach[b] = dt * speed + fall

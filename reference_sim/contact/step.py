@@ -1,0 +1,160 @@
+"""A step's contact impulses, split around the drift (the integrator's position update):
+speculative contacts before it (`before_drift`), bounce and rest after it (`after_drift`)."""
+
+from reference_sim.contact.buffers import (
+    COUNT_KEPT_ROWS,
+    COUNT_POST_WARM,
+    COUNT_PRE_WARM,
+    POST_DRIFT,
+    PRE_DRIFT,
+    STAT_SOLVES,
+    STAT_SWEEPS,
+    STAT_UNCONVERGED,
+)
+from reference_sim.contact.frames import frames_into
+from reference_sim.contact.gauss_seidel import iterate, sticking
+from reference_sim.contact.impulses import row_speed, set_impulses
+from reference_sim.contact.rows import assemble
+from reference_sim.contact.settings import (
+    BAUMGARTE,
+    IDLE_MARGIN,
+    IMPACT_SLACK,
+    MAX_ITERATIONS,
+    RESTART_MAX_BODIES,
+    RESTART_SWEEPS,
+    SUBSPACE_FIRST,
+    SUBSPACE_FIRST_WARM,
+    SUBSPACE_MIN_BODIES,
+    TOUCH_TOLERANCE,
+    solver_tolerance,
+)
+from reference_sim.contact.warm_start import remember, warm_start
+from reference_sim.jit import inlined_kernel
+
+
+@inlined_kernel
+def _bounces(model, v, nc, dt, bounce_threshold, buf):
+    """-e times the approach speed of every contact that impacts within the step, else 0, into
+    `buf.bounce` (needs `assemble`'s gaps and Jacobians)."""
+    for k in range(nc):
+        buf.bounce[k] = 0.0
+        # on standby, its gap is beyond reach: no impact within the step. With no restitution
+        # an impact leaves at normal speed 0, as a resting contact does
+        if buf.standby[k] or model.restitution == 0.0:
+            continue
+        vn = row_speed(buf.jac[k, 0], buf.cands[k, 0], buf.cands[k, 2], v, buf.omega)
+        if vn < -bounce_threshold and buf.gap[k] + dt * vn < IMPACT_SLACK:
+            buf.bounce[k] = -model.restitution * vn
+
+
+@inlined_kernel
+def solve(model, x, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm, slot):
+    """Projected Gauss-Seidel on the normal and friction impulses of the active contacts
+    (`assemble`), in place, towards `buf.target` normal speeds, to `solver_tolerance(dt)`.
+    Impulses start from those of the same contacts in the previous steps (`warm_keys`,
+    `warm_lam`, `warm_start`): a body resting on a plane converges in one sweep. The first
+    subspace step may follow the first sweep if some contact matched (SUBSPACE_FIRST_WARM),
+    else the second; none in a scene of fewer than SUBSPACE_MIN_BODIES bodies. `slot`:
+    PRE_DRIFT or POST_DRIFT (its trusted extrapolation rate, `iterate`). A warm-started solve
+    of at most RESTART_MAX_BODIES bodies not converged in RESTART_SWEEPS sweeps starts again
+    from no impulse, once, within MAX_ITERATIONS in all. Counts the solve in `buf.solver`."""
+    tolerance = solver_tolerance(dt)
+    warm = warm_start(model, x, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance)
+    first = SUBSPACE_FIRST_WARM if warm > 0 else SUBSPACE_FIRST
+    if v.shape[0] < SUBSPACE_MIN_BODIES:
+        first = MAX_ITERATIONS + 1  # after no sweep
+    restart = warm > 0 and v.shape[0] <= RESTART_MAX_BODIES
+    budget = RESTART_SWEEPS if restart else MAX_ITERATIONS
+    sweeps = 0
+    while True:  # one call site: `iterate` is inlined
+        used, converged = iterate(
+            model, x, nc, dt, buf, v, L, tolerance, IDLE_MARGIN, first, slot, budget
+        )
+        sweeps += used
+        if converged or not restart:
+            break
+        # astray (RESTART_SWEEPS): once more from no impulse, with the sweeps left
+        restart, budget = False, MAX_ITERATIONS - sweeps
+        for k in range(nc):
+            if buf.active[k]:
+                set_impulses(model, buf, k, 0.0, 0.0, 0.0, v, L)
+    buf.solver[STAT_SOLVES] += 1
+    buf.solver[STAT_SWEEPS] += sweeps
+    buf.solver[STAT_UNCONVERGED] += not converged
+
+
+@inlined_kernel
+def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
+    """Speculative impulses on the first nc candidates of `buf`, on the velocity the drift will
+    use: v + drift_gravity (m/s), the part of this step's gravity the integrator adds during the
+    drift. Every candidate acts, with target normal speed -gap / dt (a gap already negative is
+    closed at BAUMGARTE of its depth per step). Changes v and L; needs `buf.rot`, `buf.inv`,
+    `buf.omega` of the step's start.
+
+    Leaves in `buf.bounce` the normal speed each contact must leave with after the drift: -e
+    times its approach speed for an impact (a contact closing within the step faster than
+    `bounce_threshold`), else 0 (the bounce is applied after the drift, when the contact has
+    arrived), and in `buf.acting` the contacts that pushed or bounce.
+    """
+    for b in range(v.shape[0]):
+        for i in range(3):
+            v[b, i] += drift_gravity[i]
+    for k in range(nc):
+        buf.acting[k] = True
+    # the bodies have not moved since the last step's `after_drift` assembled its contacts
+    assemble(model, x, nc, TOUCH_TOLERANCE, buf, buf.counts[COUNT_KEPT_ROWS], True)
+    _bounces(model, v, nc, dt, bounce_threshold, buf)
+    for k in range(nc):
+        gap = buf.gap[k]
+        buf.target[k] = -gap / dt if gap >= 0.0 else -BAUMGARTE * gap / dt
+    n_warm = buf.counts[COUNT_PRE_WARM]
+    solve(model, x, v, L, nc, dt, buf, buf.pre_keys, buf.pre_lam, n_warm, PRE_DRIFT)
+    buf.counts[COUNT_PRE_WARM] = remember(nc, buf, buf.pre_keys, buf.pre_lam)
+    for k in range(nc):
+        buf.acting[k] = buf.lam[k, 0] > 0.0 or buf.bounce[k] > 0.0
+    for b in range(v.shape[0]):
+        for i in range(3):
+            v[b, i] -= drift_gravity[i]
+
+
+@inlined_kernel
+def _pushes_nothing(model, nc, buf, v):
+    """Whether a solve of the first nc contacts' active ones, from no impulse, would push
+    nothing: the first update of each (`update`) leaves it without impulse, its normal speed
+    at or above its target and, with friction, its sticking block out of bounds. The first
+    sweep then changes nothing and ends the solve."""
+    for k in range(nc):
+        if buf.active[k]:
+            vn = row_speed(buf.jac[k, 0], buf.cands[k, 0], buf.cands[k, 2], v, buf.omega)
+            if not buf.target[k] - vn <= 0.0:
+                return False
+            if model.friction > 0.0 and sticking(model, buf, k, v, vn, 0.0, 0.0, 0.0)[6]:
+                return False
+    return True
+
+
+@inlined_kernel
+def after_drift(model, x, q, v, L, nc, dt, buf):
+    """Impulses after the drift on the contacts that pushed before it or bounce
+    (`buf.acting`) or touch now (gap below TOUCH_TOLERANCE): the bounce targets of
+    `before_drift`, else inelastic (normal speed >= 0, and friction). Changes v and L.
+    Keeps the rows below `buf.counts[COUNT_KEPT_ROWS]`: the caller vouches that no body has
+    moved by more than rounding (`rigid.POSE_ROUNDING`) since they were assembled.
+
+    A solve with no impulse to warm-start from (none pushed after the last drift) and none that
+    an update would start (`_pushes_nothing`) would end after one sweep having changed nothing:
+    it is counted, as a solve of no sweep, and skipped (a body at rest, a pivot, a ball leaving
+    the floor)."""
+    frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
+    assemble(model, x, nc, TOUCH_TOLERANCE, buf, buf.counts[COUNT_KEPT_ROWS])
+    buf.counts[COUNT_KEPT_ROWS] = nc  # rows for the current pose, until the next drift
+    for k in range(nc):
+        buf.target[k] = buf.bounce[k]
+    if buf.counts[COUNT_POST_WARM] == 0 and _pushes_nothing(model, nc, buf, v):
+        for k in range(nc):
+            buf.lam[k, 0], buf.lam[k, 1], buf.lam[k, 2] = 0.0, 0.0, 0.0
+        buf.solver[STAT_SOLVES] += 1
+        return
+    n_warm = buf.counts[COUNT_POST_WARM]
+    solve(model, x, v, L, nc, dt, buf, buf.post_keys, buf.post_lam, n_warm, POST_DRIFT)
+    buf.counts[COUNT_POST_WARM] = remember(nc, buf, buf.post_keys, buf.post_lam)
