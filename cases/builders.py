@@ -13,7 +13,7 @@ from cases.scene import Plane
 Rows = tuple[tuple[float, float, float, float], ...]
 
 
-def seed_cube(offset=(0.0, 0.0, 0.0), mass: float = 1.0) -> Rows:
+def seed_cube_particles(offset=(0.0, 0.0, 0.0), mass: float = 1.0) -> Rows:
     """The seed's 8 particles at the corners of the unit cube [0, 1]^3 shifted by `offset`."""
     corners = [
         (0, 0, 0),
@@ -100,7 +100,7 @@ def cube_above_floor(gap: float = 0.0, radius: float = 0.2, center_xy=(0.0, 0.0)
     """The seed's cube centred over `center_xy`, faces axis-aligned, its lowest particles' surfaces
     `gap` above the floor z = 0 (centres at z = radius + gap): gap 0 touches exactly, and the COM
     sits at 0.5 + radius + gap."""
-    return seed_cube(offset=(center_xy[0] - 0.5, center_xy[1] - 0.5, radius + gap))
+    return seed_cube_particles(offset=(center_xy[0] - 0.5, center_xy[1] - 0.5, radius + gap))
 
 
 def stacked(rows: Rows, count: int, pitch: float) -> tuple[Rows, ...]:
@@ -108,7 +108,7 @@ def stacked(rows: Rows, count: int, pitch: float) -> tuple[Rows, ...]:
     return tuple(shifted(rows, (0.0, 0.0, k * pitch)) for k in range(count))
 
 
-def incline(theta: float) -> Plane:
+def incline_plane(theta: float) -> Plane:
     """The plane through the origin tilted by `theta` (rad) about y, normal (sin theta, 0,
     cos theta): its surface descends towards +x, downhill unit vector (cos theta, 0, -sin theta).
     `rotated(rows, rotation_y(theta))` carries a body resting on the floor z = 0 onto it."""

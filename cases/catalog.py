@@ -15,8 +15,8 @@ import numpy as np
 from cases import builders
 from cases.errors import InputError
 from cases.scene import Body, Contact, Expected, Scene
-from reference_sim.inertia import principal_frame
-from reference_sim.quaternion import quats_to_matrices
+from rigidmath.inertia import principal_frame
+from rigidmath.quaternion import quats_to_matrices
 
 CATALOG: dict[str, Scene] = {}
 
@@ -51,7 +51,7 @@ def seed_cube() -> Scene:
             Body(
                 name="cube",
                 particle_radius=0.2,
-                particles=builders.seed_cube(offset=(3.0, 3.0, 7.0)),
+                particles=builders.seed_cube_particles(offset=(3.0, 3.0, 7.0)),
                 velocity=(0.0, 0.0, -2.0),
                 angular_velocity=(2.0, 0.0, 0.0),
             ),
@@ -73,7 +73,7 @@ def free_spin_cube() -> Scene:
             Body(
                 name="cube",
                 particle_radius=0.2,
-                particles=builders.seed_cube(offset=(3.0, 3.0, 7.0)),
+                particles=builders.seed_cube_particles(offset=(3.0, 3.0, 7.0)),
                 angular_velocity=(2.0, 0.0, 0.0),
             ),
         ),
@@ -117,7 +117,7 @@ def dropped_cube() -> Scene:
             Body(
                 name="cube",
                 particle_radius=0.2,
-                particles=builders.seed_cube(offset=(-0.5, -0.5, 2.0)),
+                particles=builders.seed_cube_particles(offset=(-0.5, -0.5, 2.0)),
                 velocity=(0.0, 0.0, -2.0),
                 angular_velocity=(2.0, 0.0, 0.0),
             ),
@@ -397,7 +397,7 @@ def incline(name: str, degrees: float) -> Scene:
         sample_interval=0.01,
         gravity=GRAVITY,
         contact=STICKY,
-        planes=(builders.incline(theta),),
+        planes=(builders.incline_plane(theta),),
         bodies=(_cube(builders.rotated(builders.cube_above_floor(), builders.rotation_y(theta))),),
         expected=Expected(slope_acceleration=acceleration),
     )

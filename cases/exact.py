@@ -38,19 +38,15 @@ import numpy as np
 from scipy.special import elliprf
 
 from cases.scene import Scene
-from reference_sim.quaternion import (
+from rigidmath.inertia import EQUAL_MOMENTS_RTOL
+from rigidmath.quaternion import (
     quat_from_matrix,
     quat_from_rotvec,
     quats_conjugate,
     quats_multiply,
+    quats_rotate,
 )
 
-# Principal moments closer than this (relative to the largest) are taken as equal, selecting the
-# isotropic or axisymmetric closed form. eigh's rounding of a symmetric body's inertia is ~1e-15
-# relative; the closed form's error for a body whose moments really differ by delta is at most
-# ~delta |omega| t (1e-12 over 10 rad of rotation), and staying 100x above rounding keeps the
-# elliptic path away from the 0/0 of exactly equal moments.
-EQUAL_MOMENTS_RTOL = 1e-13
 # Gauss-Legendre nodes per quadrature panel of the precession rate. A panel is no longer than
 # the distance of the integrand's nearest complex pole from the real time axis, so the error
 # falls like (2 + sqrt 5)^(-2 n): 1e-25 at n = 20, far below rounding.
@@ -144,7 +140,7 @@ def _precession(ang_mom, axis, i_sym, i_trans, t) -> tuple[np.ndarray, np.ndarra
             quat_from_rotvec(ang_mom * (ti / i_trans)), quat_from_rotvec(axis * (rate * ti))
         )
     # omega = I(t)^-1 L with I(t)^-1 = (1 - s s^T) / I_t + s s^T / I_s and s(t) = R(t) s.
-    s_t = _rotate(q, axis)
+    s_t = quats_rotate(q, axis)
     w = ang_mom / i_trans + (1.0 / i_sym - 1.0 / i_trans) * l_sym * s_t
     return q, w
 
@@ -213,7 +209,7 @@ def _jacobi(ang_mom, omega0, moments, axes, t, nodes, panel_fraction):
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     # omega = R(t) frame I^-1 pi(t).
     w_body = np.column_stack([p1 / i1, p2 / i2, p3 / i3]) @ frame.T
-    return q, _rotate(q, w_body)
+    return q, quats_rotate(q, w_body)
 
 
 def _jacobi_am(u, m, m1):
@@ -272,10 +268,3 @@ def _zxz_quat(phi, theta, psi):
     return np.column_stack(
         [ch * np.cos(plus), sh * np.cos(minus), sh * np.sin(minus), ch * np.sin(plus)]
     )
-
-
-def _rotate(q, v):
-    """Rotate v (3,) or (S, 3) by the quaternions q (S, 4): v + 2 w (u x v) + 2 u x (u x v)."""
-    w, u = q[:, :1], q[:, 1:]
-    uv = np.cross(u, v)
-    return v + 2.0 * w * uv + 2.0 * np.cross(u, uv)

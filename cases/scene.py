@@ -15,7 +15,7 @@ import numpy as np
 from pydantic import ConfigDict, Field
 from pydantic.dataclasses import dataclass
 
-from reference_sim.inertia import center_of_mass, inertia_tensor
+from rigidmath.inertia import center_of_mass, inertia_tensor
 
 # Strict: a string or a boolean is not a number; NaN and inf are rejected everywhere.
 Num = Annotated[float, Field(strict=True, allow_inf_nan=False)]

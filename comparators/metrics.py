@@ -17,7 +17,7 @@ import pandas as pd
 
 from cases.scene import Scene
 from comparators.trajectory import ANGULAR_VELOCITY, POSITION, QUATERNION, VELOCITY, Trajectory
-from reference_sim.quaternion import quats_angle_between, quats_to_matrices
+from rigidmath.quaternion import quats_angle_between, quats_to_matrices
 
 # A body is at rest when its COM speed and angular speed stay below these over the rest window:
 # 1 mm/s and 1 mrad/s are far below the motion of any case yet far above impulse-solver noise.

@@ -26,7 +26,8 @@ from cases.scene import Contact, Scene
 from comparators.harness import RunTimer, sample_steps
 from comparators.parity import body_readback
 from comparators.trajectory import Trajectory, package_versions
-from reference_sim.inertia import principal_frame
+from rigidmath.inertia import principal_frame
+from rigidmath.quaternion import quats_rotate
 
 try:
     import mujoco
@@ -346,13 +347,6 @@ def step_loop(model, data, n_steps: int, stride: int) -> tuple[np.ndarray, np.nd
     return steps, out
 
 
-def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotate v (S, 3) by the unit quaternions q (S, 4): v + 2 w (u x v) + 2 u x (u x v)."""
-    w, u = q[:, :1], q[:, 1:]
-    uv = np.cross(u, v)
-    return v + 2.0 * w * uv + 2.0 * np.cross(u, uv)
-
-
 def samples_from_states(model, states: np.ndarray, n_bodies: int) -> np.ndarray:
     """(S, B, 13) rows x, q, v, world omega from full states (S, nstate)."""
     out = np.empty((states.shape[0], n_bodies, 13))
@@ -363,7 +357,7 @@ def samples_from_states(model, states: np.ndarray, n_bodies: int) -> np.ndarray:
         out[:, k, 0:3] = states[:, qa : qa + 3]
         out[:, k, 3:7] = q
         out[:, k, 7:10] = states[:, va : va + 3]
-        out[:, k, 10:13] = _rotate(q, states[:, va + 3 : va + 6])
+        out[:, k, 10:13] = quats_rotate(q, states[:, va + 3 : va + 6])
     return out
 
 

@@ -37,7 +37,7 @@ from cases.exact import EQUAL_MOMENTS_RTOL, exact_states, exact_trajectory_avail
 from cases.scene import Body, Plane, Scene
 from comparators.metrics import REST_SPEED, body_arrays, conserved_quantities, support_plane
 from comparators.trajectory import Trajectory
-from reference_sim.quaternion import quats_to_matrices
+from rigidmath.quaternion import quats_to_matrices
 
 OUTCOME_COLUMNS = ["quantity", "measured", "expected", "error", "unit"]
 VERDICTS = ("ok", "diverged", "tunnelled", "jitter")  # besides "failed: <reason>" (no run)

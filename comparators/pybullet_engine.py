@@ -28,8 +28,8 @@ from cases.scene import Scene
 from comparators.harness import RunTimer, sample_steps
 from comparators.parity import body_readback
 from comparators.trajectory import Trajectory, package_versions
-from reference_sim.inertia import principal_frame
-from reference_sim.quaternion import quat_from_matrix, quat_to_matrix, quats_multiply
+from rigidmath.inertia import principal_frame
+from rigidmath.quaternion import quat_from_matrix, quat_to_matrix, quats_multiply
 
 
 @contextmanager

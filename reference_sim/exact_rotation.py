@@ -58,15 +58,8 @@ import numpy as np
 
 from reference_sim.jit import inlined_kernel, kernel
 from reference_sim.quaternion import qfrom_matrix, qmul
+from rigidmath.inertia import EQUAL_MOMENTS_RTOL
 
-# Principal moments closer than this (relative to the largest) are taken as equal, selecting the
-# isotropic or axisymmetric closed form (exactly equal moments are a 0/0 in the elliptic
-# parameters). The moments come from eigh of the particle tensor, whose rounding is ~1e-15
-# relative, so a symmetric body's computed moments differ by that much; the closed form's error
-# for a body whose moments really differ by delta is at most ~delta |omega| dt (1e-12 over 10 rad
-# of rotation), and the elliptic path is accurate for any larger difference. The same value as
-# cases.exact.EQUAL_MOMENTS_RTOL, so both pick the same branch for the same body.
-EQUAL_MOMENTS_RTOL = 1e-13
 # Truncation bound of Carlson's duplication (relative error of R_F and R_J before rounding):
 # the unit roundoff, so truncation stays below the rounding of the result.
 CARLSON_RTOL = 2.0**-53

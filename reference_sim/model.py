@@ -9,8 +9,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from reference_sim.inertia import center_of_mass, inertia_tensor, principal_frame
 from reference_sim.vec3 import tangents
+from rigidmath.inertia import center_of_mass, inertia_tensor, principal_frame
 
 
 class Model(NamedTuple):

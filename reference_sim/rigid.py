@@ -39,7 +39,7 @@ from reference_sim.model import Model
 from reference_sim.quaternion import qexp, qmatrix, qmul, qnormalize
 from reference_sim.vec3 import dot, mat, mat_t_vec, mat_vec, row, vec
 
-INTEGRATORS = {"euler": 0, "splitting": 1, "rk4": 2, "exact": 3}
+INTEGRATOR_CODES = {"euler": 0, "splitting": 1, "rk4": 2, "exact": 3}
 EULER, SPLITTING, RK4, EXACT = 0, 1, 2, 3
 # Impacts slower than this many steps' worth of gravity are resting contacts, not bounces:
 # a body lying still gains |g| dt of approach speed every step and must not bounce on it.
@@ -229,7 +229,7 @@ def _steps(
         if needed != 0:
             return needed
         if n % stride == 0 or n == n_steps:
-            _record(model, x, q, v, L, out[progress[1]])
+            _record_state(model, x, q, v, L, out[progress[1]])
             steps[progress[1]] = n
             progress[1] += 1
         progress[0] += 1
@@ -254,7 +254,7 @@ def _grid_pairs(model, integrator, x, q, v, L, dt, buf):
 
 
 @kernel
-def _record(model, x, q, v, L, out):
+def _record_state(model, x, q, v, L, out):
     """One sample (B, 13): x, q, v and world omega of every body."""
     for b in range(x.shape[0]):
         qb = (q[b, 0], q[b, 1], q[b, 2], q[b, 3])
@@ -283,7 +283,7 @@ def run_rigid(model, integrator, x, q, v, L, dt, n_steps, stride):
         return steps, out, np.zeros(SOLVER_STATISTICS, dtype=np.int64)
     nb = x.shape[0]
     buf = contact_buffers(nb, 8 * nb + 16, 4 * nb + 16)
-    _record(model, x, q, v, L, out[0])
+    _record_state(model, x, q, v, L, out[0])
     steps[0] = 0
     progress = np.ones(2, dtype=np.int64)  # the next step and the next sample's slot
     while progress[0] <= n_steps:
@@ -327,13 +327,13 @@ def run_rigid_fields(fields, integrator, x, q, v, L, dt, n_steps, stride):
 def _free_steps(model, integrator, x, q, v, L, dt, n_steps, stride, out, steps):
     """`run_rigid` without contact: every step is `rigid_step`'s drift (and euler's kick)
     alone, in one kernel, so a step makes no counted call."""
-    _record(model, x, q, v, L, out[0])
+    _record_state(model, x, q, v, L, out[0])
     steps[0] = 0
     s = 1
     for n in range(1, n_steps + 1):
         _kick(model, integrator, v, dt)
         _drift(model, integrator, x, q, v, L, dt)
         if n % stride == 0 or n == n_steps:
-            _record(model, x, q, v, L, out[s])
+            _record_state(model, x, q, v, L, out[s])
             steps[s] = n
             s += 1

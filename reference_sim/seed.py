@@ -19,11 +19,23 @@ Friction is not part of the seed and is ignored. The seed's gravity is the scene
 
 import numpy as np
 
-from reference_sim import inertia, quaternion
 from reference_sim.jit import compiled
+from reference_sim.quaternion import qfrom_matrix
+from rigidmath import inertia
 
 inertia_tensor = compiled(inertia.inertia_tensor)
-quat_from_matrix = compiled(quaternion.quat_from_matrix)
+
+
+@compiled
+def quat_from_matrix(m):
+    """`rigidmath.quaternion.quat_from_matrix` on the compiled `qfrom_matrix`: unit quaternion
+    (w >= 0) of the rotation matrix m (3, 3)."""
+    q = np.array(
+        qfrom_matrix(
+            (m[0, 0], m[0, 1], m[0, 2], m[1, 0], m[1, 1], m[1, 2], m[2, 0], m[2, 1], m[2, 2])
+        )
+    )
+    return -q if q[0] < 0 else q
 
 
 @compiled
@@ -111,7 +123,7 @@ def best_fit_rotation(reference, current, masses):
 
 
 @compiled
-def _record(model, pos, vel, out, shape_error):
+def _record_particles(model, pos, vel, out, shape_error):
     """Body observables of the deforming particle cluster.
 
     x, v: mass-weighted means of particle positions and velocities; q: best-fit rotation of the
@@ -156,13 +168,13 @@ def run_seed(model, pos, vel, cm, V, omega, dt, n_steps, stride):
     out = np.empty((n_samples, nb, 13))
     shape = np.empty((n_samples, nb))
     steps = np.empty(n_samples, dtype=np.int64)
-    _record(model, pos, vel, out[0], shape[0])
+    _record_particles(model, pos, vel, out[0], shape[0])
     steps[0] = 0
     s = 1
     for n in range(1, n_steps + 1):
         seed_step(model, pos, vel, cm, V, omega, dt)
         if n % stride == 0 or n == n_steps:
-            _record(model, pos, vel, out[s], shape[s])
+            _record_particles(model, pos, vel, out[s], shape[s])
             steps[s] = n
             s += 1
     return steps, out, shape

@@ -18,11 +18,10 @@ from reference_sim.model import (
     rigid_initial_state,
     seed_initial_state,
 )
-from reference_sim.rigid import INTEGRATORS as RIGID_INTEGRATORS
-from reference_sim.rigid import run_rigid_fields
+from reference_sim.rigid import INTEGRATOR_CODES, run_rigid_fields
 from reference_sim.seed import run_seed
 
-INTEGRATORS = ("seed", *RIGID_INTEGRATORS)
+INTEGRATORS = ("seed", *INTEGRATOR_CODES)
 # The order each integrator's error should show in dt. `exact` has no truncation error without
 # contact (its error is rounding at every dt); with contact its kick-drift-kick is second order.
 ORDERS = {"seed": 1, "euler": 1, "splitting": 2, "rk4": 4, "exact": 2}
@@ -56,7 +55,7 @@ def _call(model, integrator, state, dt, n_steps, stride):
     if integrator == "seed":
         return (*run_seed(model, *state, dt, n_steps, stride), None)
     steps, samples, solver = run_rigid_fields(
-        tuple(model), RIGID_INTEGRATORS[integrator], *state, dt, n_steps, stride
+        tuple(model), INTEGRATOR_CODES[integrator], *state, dt, n_steps, stride
     )
     return steps, samples, None, solver
 

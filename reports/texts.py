@@ -51,7 +51,7 @@ def throughput(engine: str, integrator: str) -> str:
     )
 
 
-CATALOG = (
+CASE_CATALOG = (
     "How to read: what each case is, what an engine has to model for it, and what its errors "
     "are measured against (exact: closed form; self-convergence: the same engine and "
     "integrator at the finest dt)."

@@ -1,7 +1,7 @@
 """Scenes shared by several test files (not catalog cases: they exist to check one thing)."""
 
 from cases import Body, Contact, Scene
-from cases.builders import seed_cube
+from cases.builders import seed_cube_particles
 from reference_sim.model import rigid_initial_state
 
 
@@ -27,11 +27,13 @@ def head_on(restitution: float, contact: bool = True) -> Scene:
         gravity=(0.0, 0.0, 0.0),
         contact=Contact(restitution=restitution, friction=0.0) if contact else None,
         bodies=(
-            Body(name="a", particle_radius=0.2, particles=seed_cube(), velocity=(1.0, 0, 0)),
+            Body(
+                name="a", particle_radius=0.2, particles=seed_cube_particles(), velocity=(1.0, 0, 0)
+            ),
             Body(
                 name="b",
                 particle_radius=0.2,
-                particles=seed_cube(offset=(1.5, 0.0, 0.0)),
+                particles=seed_cube_particles(offset=(1.5, 0.0, 0.0)),
                 velocity=(-1.0, 0, 0),
             ),
         ),

@@ -1,5 +1,8 @@
 """The catalog and the builders: mass properties and what each case states."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -9,14 +12,14 @@ from cases.builders import (
     box_lattice,
     box_walls,
     cube_above_floor,
-    incline,
+    incline_plane,
     rotated,
     rotation_y,
-    seed_cube,
+    seed_cube_particles,
     stacked,
 )
 from comparators.metrics import REST_WINDOW
-from reference_sim.inertia import principal_frame
+from rigidmath.inertia import principal_frame
 
 
 @pytest.mark.parametrize(
@@ -59,7 +62,7 @@ def test_dropped_cube_starts_two_metres_up():
 
 
 def test_builders():
-    assert len(seed_cube()) == 8
+    assert len(seed_cube_particles()) == 8
     corners = np.array(box_corners((1.0, 2.0, 3.0), center=(1.0, 1.0, 1.0)))
     np.testing.assert_array_equal(np.ptp(corners[:, :3], axis=0), (1, 2, 3))
     np.testing.assert_array_equal(corners[:, :3].mean(axis=0), (1, 1, 1))
@@ -322,7 +325,7 @@ def test_rotation_builders():
     theta = 0.3
     rotation = rotation_y(theta)
     np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-15)
-    np.testing.assert_allclose(rotation @ (0, 0, 1), incline(theta).unit_normal, atol=1e-15)
+    np.testing.assert_allclose(rotation @ (0, 0, 1), incline_plane(theta).unit_normal, atol=1e-15)
     rows = cube_above_floor(gap=0.25)
     turned = np.array(rotated(rows, rotation, about=(1.0, 2.0, 3.0)))
     pivot = np.array([1.0, 2.0, 3.0])
@@ -337,3 +340,15 @@ def test_rotation_builders():
     tower = stacked(rows, 3, 1.5)
     assert len(tower) == 3
     np.testing.assert_allclose(np.array(tower[2])[:, :3] - original[:, :3], [[0, 0, 3.0]] * 8)
+
+
+def test_cases_stand_alone_without_any_engine():
+    """Loading every case imports no engine: the scenes are engine-neutral (their rigid-body
+    math lives in `rigidmath`)."""
+    code = (
+        "import sys, cases; cases.resolve_case('cube_rain_20'); "
+        "print(sorted({m.split('.')[0] for m in sys.modules} "
+        "& {'reference_sim', 'comparators', 'reports', 'numba', 'mujoco', 'pybullet'}))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout

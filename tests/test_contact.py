@@ -36,7 +36,7 @@ from reference_sim.contact.buffers import (
 from reference_sim.contact.impulses import row_speed
 from reference_sim.contact.rows import assemble
 from reference_sim.quaternion import qmatrix
-from reference_sim.rigid import BOUNCE_STEPS, INTEGRATORS, rigid_step
+from reference_sim.rigid import BOUNCE_STEPS, INTEGRATOR_CODES, rigid_step
 
 # Gauss-Seidel impulses stop when no impulse changes a speed by more than 1e-13 m/s; a few
 # sweeps of that leave the outcome exact to well below this.
@@ -295,7 +295,10 @@ def test_without_the_restart_the_flat_landing_cycles_and_turns(monkeypatch):
     threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * dt
     w = []
     for _ in range(scene.steps(dt, scene.duration)):
-        assert rigid_step.py_func(model, INTEGRATORS["euler"], x, q, v, L, dt, threshold, buf) == 0
+        assert (
+            rigid_step.py_func(model, INTEGRATOR_CODES["euler"], x, q, v, L, dt, threshold, buf)
+            == 0
+        )
         w.append(frames.world_omega(model, q[0], L[0], 0))
     assert buf.solver[STAT_UNCONVERGED] > 0
     assert _off_axis_turn(w) > SYMMETRY_TOLERANCE
@@ -375,7 +378,7 @@ def _rain_step(model, state, buf, step=rigid_step):
     Python code)."""
     dt = CATALOG["cube_rain_8"].dt
     threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * dt
-    return step(model, INTEGRATORS["euler"], *state, dt, threshold, buf)
+    return step(model, INTEGRATOR_CODES["euler"], *state, dt, threshold, buf)
 
 
 def _python_solves(monkeypatch, **changed):
@@ -481,7 +484,7 @@ def test_a_trusted_rate_extrapolates_sooner_to_the_same_motion():
     threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * scene.dt
     for _ in range(scene.steps(scene.dt, scene.duration)):
         before = [a.copy() for a in state], buffers.ContactBuffers(*(a.copy() for a in buf))
-        assert rigid_step(model, INTEGRATORS["euler"], *state, scene.dt, threshold, buf) == 0
+        assert rigid_step(model, INTEGRATOR_CODES["euler"], *state, scene.dt, threshold, buf) == 0
         trusted = before[1].rates[PRE_DRIFT] > 0.0
         if trusted and buf.solver[STAT_EXTRAPOLATIONS] > before[1].solver[STAT_EXTRAPOLATIONS]:
             break
@@ -491,7 +494,7 @@ def test_a_trusted_rate_extrapolates_sooner_to_the_same_motion():
     untrusted = buffers.ContactBuffers(*(a.copy() for a in before[1]))
     untrusted.rates[:] = 0.0
     again = [a.copy() for a in before[0]]
-    assert rigid_step(model, INTEGRATORS["euler"], *again, scene.dt, threshold, untrusted) == 0
+    assert rigid_step(model, INTEGRATOR_CODES["euler"], *again, scene.dt, threshold, untrusted) == 0
     assert untrusted.solver[STAT_UNCONVERGED] == before[1].solver[STAT_UNCONVERGED]
     sweeps = buf.solver[STAT_SWEEPS] - before[1].solver[STAT_SWEEPS]
     assert sweeps < untrusted.solver[STAT_SWEEPS] - before[1].solver[STAT_SWEEPS]
@@ -534,7 +537,7 @@ def test_a_contact_on_standby_wakes_when_the_solve_swings_its_body_into_it():
     frames.frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
     frames.reach_into(model, v, buf.omega, dt, (0.0, 0.0, 0.0), buf.reach)
     assert buf.reach[0] < lift  # the far end is beyond the step's reach at its start
-    assert rigid_step(model, INTEGRATORS["euler"], x, q, v, L, dt, 0.0, buf) == 0
+    assert rigid_step(model, INTEGRATOR_CODES["euler"], x, q, v, L, dt, 0.0, buf) == 0
     far = [i for i, row in enumerate(rows) if row[0] > 0 and row[2] == radius + lift]
     # the contacts that pushed before the drift, by key: particle i's is i
     n = buf.counts[COUNT_PRE_WARM]

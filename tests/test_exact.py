@@ -14,7 +14,7 @@ from cases import builders
 from cases.catalog import CATALOG
 from cases.exact import exact_states, exact_trajectory_available, torque_free_rotation
 from cases.scene import Body, Scene
-from reference_sim.quaternion import quats_to_matrices
+from rigidmath.quaternion import quats_to_matrices
 
 # Closed forms (constant spin, ballistic COM) evaluate the same few operations: a few ulps.
 CLOSED_FORM_TOL = 1e-14

@@ -20,7 +20,7 @@ from cases.catalog import CATALOG
 from cases.exact import torque_free_rotation
 from reference_sim.exact_rotation import EQUAL_MOMENTS_RTOL, exact_rotation
 from reference_sim.model import build_model, rigid_initial_state
-from reference_sim.quaternion import (
+from rigidmath.quaternion import (
     quat_angle_between,
     quat_from_rotvec,
     quat_multiply,

@@ -45,7 +45,7 @@ from reference_sim.contact.settings import (
     solver_tolerance,
 )
 from reference_sim.contact.step import _pushes_nothing, solve
-from reference_sim.rigid import BOUNCE_STEPS, INTEGRATORS, POSE_ROUNDING, rigid_step, run_rigid
+from reference_sim.rigid import BOUNCE_STEPS, INTEGRATOR_CODES, POSE_ROUNDING, rigid_step, run_rigid
 
 # Free flight: one step of either path from the same state. They differ in the order of their
 # floating-point operations only (a few ulps of unit-scale numbers, ~1e-15), while any formula
@@ -118,7 +118,7 @@ def test_free_flight_loop_matches_the_straightforward_step(case, integrator):
     model, state = _state(scene)
     x, q, v = state.x[0].copy(), state.q[0].copy(), state.v[0].copy()
     L = state.L[0].copy()
-    code = INTEGRATORS[integrator]
+    code = INTEGRATOR_CODES[integrator]
     worst = 0.0
     for _ in range(FREE_STEPS):
         start = (x[None], q[None], v[None], L[None])
@@ -213,7 +213,7 @@ def test_grid_and_pairwise_steps_are_bit_equal(integrator):
     nb = len(model.body_mass)
     assert nb >= GRID_MIN_BODIES
     threshold = BOUNCE_STEPS * 10.0 * scene.dt
-    code = INTEGRATORS[integrator]
+    code = INTEGRATOR_CODES[integrator]
     results = []
     for use_grid in (True, False):
         x, q, v, L = (a.copy() for a in state)
@@ -303,7 +303,9 @@ def test_reused_contact_rows_are_fresh_ones_to_rounding(case, integrator):
             else:
                 buf.counts[COUNT_KEPT_ROWS] = 0  # the first assembly keeps no row: every one afresh
             assert (
-                rigid_step(model, INTEGRATORS[integrator], x, q, v, L, scene.dt, threshold, buf)
+                rigid_step(
+                    model, INTEGRATOR_CODES[integrator], x, q, v, L, scene.dt, threshold, buf
+                )
                 == 0
             )
             if reuse:
@@ -360,7 +362,9 @@ def test_sweeps_that_skip_idle_contacts_end_where_full_sweeps_end(steps):
     buf = contact_buffers(nb, 64 * nb, nb * nb)
     threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * scene.dt
     for _ in range(steps):
-        assert rigid_step(model, INTEGRATORS["euler"], x, q, v, L, scene.dt, threshold, buf) == 0
+        assert (
+            rigid_step(model, INTEGRATOR_CODES["euler"], x, q, v, L, scene.dt, threshold, buf) == 0
+        )
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
     nc = find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
     buf.acting[:nc] = True
@@ -404,7 +408,10 @@ def test_a_skipped_post_drift_solve_would_push_nothing(case, integrator):
     skipped = 0
     for _ in range(n_steps):
         remembered = buf.counts[COUNT_POST_WARM]
-        assert rigid_step(model, INTEGRATORS[integrator], x, q, v, L, scene.dt, threshold, buf) == 0
+        assert (
+            rigid_step(model, INTEGRATOR_CODES[integrator], x, q, v, L, scene.dt, threshold, buf)
+            == 0
+        )
         nc = buf.counts[COUNT_KEPT_ROWS]  # the candidates after the drift, assembled at this pose
         if nc == 0 or not _pushes_nothing(model, nc, buf, v):
             continue

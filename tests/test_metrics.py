@@ -9,7 +9,7 @@ from cases import CATALOG
 from comparators import RunMeta, Trajectory, run
 from comparators.metrics import conserved_quantities, relative_drift, rest
 from comparators.summary import summarize
-from reference_sim.quaternion import quat_angle_between, quat_from_rotvec
+from rigidmath.quaternion import quat_angle_between, quat_from_rotvec
 
 META = RunMeta("x", "test", "none", 0.1, 1, 0.1, 0.0, 1.0)
 

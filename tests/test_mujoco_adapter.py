@@ -15,7 +15,7 @@ from cases.exact import exact_states
 from comparators import mujoco_engine as mj
 from comparators import run
 from comparators.metrics import body_arrays, conserved_quantities, pose_errors, rest
-from reference_sim.quaternion import quat_to_matrix
+from rigidmath.quaternion import quat_to_matrix
 
 mujoco = pytest.importorskip(
     "mujoco", reason="the mujoco package is not installed: the MuJoCo adapter cannot run"

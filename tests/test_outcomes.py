@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from cases import CATALOG, Body, Contact, Expected, Scene
-from cases.builders import floor, seed_cube
+from cases.builders import floor, seed_cube_particles
 from cases.exact import exact_states
 from comparators import RunMeta, Trajectory, run
 from comparators.outcomes import (
@@ -28,7 +28,7 @@ from comparators.outcomes import (
     particle_positions,
     verdict,
 )
-from reference_sim.quaternion import quat_from_rotvec, quat_to_matrix
+from rigidmath.quaternion import quat_from_rotvec, quat_to_matrix
 
 G = 10.0
 RADIUS = 0.2  # the seed cube's particle radius
@@ -51,7 +51,7 @@ def cube(height: float = REST, **kwargs) -> Body:
     return Body(
         name="cube",
         particle_radius=RADIUS,
-        particles=seed_cube(offset=(-0.5, -0.5, height - 0.5)),
+        particles=seed_cube_particles(offset=(-0.5, -0.5, height - 0.5)),
         **kwargs,
     )
 
@@ -266,7 +266,7 @@ def incline_scene(degrees: float, acceleration: float) -> tuple[Scene, np.ndarra
     theta = math.radians(degrees)
     c, s = math.cos(theta), math.sin(theta)
     rotation = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-    rows = np.array(seed_cube(offset=(-0.5, -0.5, RADIUS)))
+    rows = np.array(seed_cube_particles(offset=(-0.5, -0.5, RADIUS)))
     rows[:, :3] = rows[:, :3] @ rotation.T
     body = Body(name="cube", particle_radius=RADIUS, particles=tuple(map(tuple, rows)))
     plane = dataclasses.replace(floor(), normal=(s, 0.0, c))
@@ -319,8 +319,12 @@ def test_a_stack_stands_while_its_top_drifts_less_than_the_bound(drift):
 
 
 def free_pair() -> Scene:
-    a = Body(name="a", particle_radius=RADIUS, particles=seed_cube(offset=(-3.0, 0.0, 0.0)))
-    b = Body(name="b", particle_radius=RADIUS, particles=seed_cube(offset=(0.0, 0.0, 0.0)))
+    a = Body(
+        name="a", particle_radius=RADIUS, particles=seed_cube_particles(offset=(-3.0, 0.0, 0.0))
+    )
+    b = Body(
+        name="b", particle_radius=RADIUS, particles=seed_cube_particles(offset=(0.0, 0.0, 0.0))
+    )
     return Scene(name="pair", duration=1.0, dt=0.01, gravity=(0.0, 0.0, 0.0), bodies=(a, b))
 
 

@@ -17,7 +17,7 @@ p = pytest.importorskip("pybullet")
 from scenes import head_on  # noqa: E402
 
 from cases import Body, Contact, Scene  # noqa: E402
-from cases.builders import box_corners, floor, seed_cube  # noqa: E402
+from cases.builders import box_corners, floor, seed_cube_particles  # noqa: E402
 from cases.catalog import CATALOG  # noqa: E402
 from cases.exact import exact_states  # noqa: E402
 from comparators import ENGINES, Trajectory, run  # noqa: E402
@@ -27,8 +27,8 @@ from comparators.pybullet_engine import (  # noqa: E402
     connect,
     run_pybullet,
 )
-from reference_sim.inertia import principal_frame  # noqa: E402
-from reference_sim.quaternion import (  # noqa: E402
+from rigidmath.inertia import principal_frame  # noqa: E402
+from rigidmath.quaternion import (  # noqa: E402
     quat_to_matrix,
     quats_angle_between,
     quats_to_matrices,
@@ -317,7 +317,7 @@ def test_plane_rebound_is_e(restitution):
             Body(
                 name="c",
                 particle_radius=0.2,
-                particles=seed_cube(offset=(-0.5, -0.5, 1.0)),
+                particles=seed_cube_particles(offset=(-0.5, -0.5, 1.0)),
                 velocity=(0.0, 0.0, -3.0),
             ),
         ),

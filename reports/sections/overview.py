@@ -97,4 +97,4 @@ def catalog_section(result: SweepResult) -> list[str]:
         }
         for name, scene in result.scenes.items()
     ]
-    return section("Catalog", texts.CATALOG, markdown_table(pd.DataFrame(rows)))
+    return section("Catalog", texts.CASE_CATALOG, markdown_table(pd.DataFrame(rows)))

@@ -1,12 +1,18 @@
 """Mass properties of a particle cluster, as in the seed: I = sum m (r.r 1 - r r^T).
 
 A particle's own sphere adds no inertia. Plain Python on numpy arrays, written so that numba can
-compile them too: the seed compiles `inertia_tensor` for its step loop (`reference_sim.seed`),
-while building scenes and models calls them uncompiled, so that importing the catalog compiles
-nothing (it cost ~8 s from an empty numba cache).
+compile them too: the seed compiles `inertia_tensor` for its step loop (`reference_sim.seed`);
+scenes and models call them uncompiled, so that loading a case compiles nothing.
 """
 
 import numpy as np
+
+# Principal moments closer than this (relative to the largest) are taken as equal, selecting the
+# isotropic or axisymmetric closed form (exactly equal moments are a 0/0 in the elliptic
+# parameters). eigh's rounding of a symmetric body's inertia is ~1e-15 relative, and a body whose
+# moments really differ by delta is off by at most ~delta |omega| t (1e-12 over 10 rad of
+# rotation). The exact solution and the `exact` integrator share it: the same branch per body.
+EQUAL_MOMENTS_RTOL = 1e-13
 
 
 def center_of_mass(positions, masses):
