@@ -1,5 +1,7 @@
 """The built-in catalog: scenes registered by name with tags (dm_control's TaggedTasks idea).
 
+Over 500 lines because it is the catalog: one builder per case with the closed forms it states.
+
 Tests and reports parametrize over `CATALOG`, so adding a case adds its tests. The `cube_rain`
 family (`cube_rain(n)`, at the end) is built for any N by name, `cube_rain_N` (`family_scene`);
 the catalog holds one small member.
