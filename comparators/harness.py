@@ -8,8 +8,9 @@ An adapter's `Engine.run` follows this outline::
     with timer.setup():  # model building, compilation, the parity readback
         model = build(scene, integrator, dt)
         bodies = read_back(model)  # `comparators.parity.body_readback` per body, before stepping
+    steps = sample_steps(timer.n_steps, timer.stride)
     with timer.stepping():  # stepping and recording samples, nothing else
-        states = step(model, sample_steps(timer.n_steps, timer.stride))
+        states = step(model, steps)
     meta = timer.meta(package_versions("my_engine"), settings(model), bodies)
     return timer.trajectory(steps, samples_from(states), meta)
 """
