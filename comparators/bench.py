@@ -27,8 +27,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from cases.errors import InputError
 from cases.scene import Scene
 from comparators.engine import ENGINES, get_engine
-from comparators.outcomes import verdict
 from comparators.timing import BENCH_REPEATS, MIN_REPEATS, attempt_run, interleaved, spread
+from comparators.verdict import verdict
 
 BENCH_COLUMNS = [
     "case",

@@ -1,31 +1,13 @@
-"""Outcomes measured from any engine's trajectory and the scene: each run's verdict, and the
-quantities physics predicts in closed form (rebound ratio, apex heights, stopping distance and
-time, slope acceleration, rest, momentum, flip period).
-
-Longer than most modules: the verdict and every measurement read one `RunData`, whose arrays
-are computed once per run.
+"""Outcomes measured from any engine's trajectory and the scene: the quantities physics predicts
+in closed form (rebound ratio, apex heights, stopping distance and time, slope acceleration,
+rest, momentum, flip period), each against its expected value.
 
 Everything here reads the trajectory table (COM position and velocity, orientation, angular
 velocity per sample; `comparators.trajectory`) and the scene, never an engine's internals, so
 every engine is measured the same way. What is measured is decided by what the scene states (its
 `Expected` fields, number of bodies, planes, gravity), never by its name: a case loaded from TOML
-gets the same treatment as a catalog case.
-
-Particles are placed rigidly from x, q and each body's t = 0 offsets (`particle_positions`). A
-deforming engine (the seed) adds a `shape_error` column: at samples where its shape has changed
-by more than RIGID_SHAPE_RTOL the rigid placement is not where its particles are, so their
-distances to planes are unknown there (NaN, left out of every measurement) and only the COM is
-tested for tunnelling (the COM of a cluster lies inside its particles' hull, so a COM behind a
-plane means particles behind it too).
-
-Verdict, in precedence order:
-  "diverged"   a non-finite state, or total energy above its initial value by more than
-               ENERGY_GROWTH_LIMIT times the scene's energy scale (`energy_scale`);
-  "tunnelled"  at some sample a particle deeper below a plane than its radius: its centre on the
-               wrong side of the plane;
-  "jitter"     a scene that expects rest (`Expected.rest_com_height`) whose body still moves,
-               some particle faster than JITTER_SPEED, in the final window (`final_window`);
-  "ok"         none of these.
+gets the same treatment as a catalog case. The run's arrays come from `comparators.run_data`, its
+verdict from `comparators.verdict`.
 """
 
 from __future__ import annotations
@@ -35,28 +17,20 @@ import pandas as pd
 
 from cases.exact import EQUAL_MOMENTS_RTOL, exact_states, exact_trajectory_available
 from cases.scene import Body, Plane, Scene
-from comparators.metrics import REST_SPEED, body_arrays, conserved_quantities, support_plane
+from comparators.metrics import REST_SPEED, support_plane
+from comparators.run_data import (
+    RunData,
+    contact_planes,
+    expects_rest,
+    final_window,
+    plane_under,
+    starts_at_rest,
+)
 from comparators.trajectory import Trajectory
 from rigidmath.quaternion import quats_to_matrices
 
 OUTCOME_COLUMNS = ["quantity", "measured", "expected", "error", "unit"]
-VERDICTS = ("ok", "diverged", "tunnelled", "jitter")  # besides "failed: <reason>" (no run)
 
-# Energy growth past which a run has diverged, relative to `energy_scale`: an order of magnitude,
-# a blow-up rather than an error; correct integrators stay far below it (figures behind this and
-# the next thresholds: docs/measurement.md).
-ENERGY_GROWTH_LIMIT = 10.0
-# A body that should rest "jitters" when some particle still moves faster than this in the final
-# window: metrics.REST_SPEED, the suite's definition of rest, far above any engine's resting noise.
-JITTER_SPEED = REST_SPEED
-# The final window, where a body that should rest must be resting: the last quarter of the run,
-# at most 10 s. Cases give their bodies most of the run to settle; 10 s covers a 60 s rest.
-FINAL_FRACTION = 0.25
-FINAL_WINDOW_S = 10.0
-# Relative change of inter-particle distances (`shape_error`) below which a sample's rigid
-# placement of the particles is theirs to 1e-6 of the body's size: micrometres, against
-# particle radii of centimetres.
-RIGID_SHAPE_RTOL = 1e-6
 # Rebound ratio: the mean over the bounces whose apex heights the case states, else over the
 # first REBOUND_BOUNCES impacts (later ones are slow, at the contact's resolution). Impacts
 # approaching slower than MIN_IMPACT_FRACTION of the fastest are contact noise, not bounces (a
@@ -75,233 +49,6 @@ SLOPE_SETTLE_FRACTION = 0.1
 # A stack stands while every body's COM stays within this of where it started (m): far beyond
 # soft-contact settling (1e-4 m), well below a tenth of a cube's edge.
 STAND_DISTANCE = 0.05
-# A body starts in contact when a particle surface is this close to a plane or another body (m):
-# placed touching, to rounding of metre-scale coordinates, with room for a placement by hand.
-TOUCH_DISTANCE = 1e-6
-
-
-# ---- one run's arrays --------------------------------------------------------------------------
-
-
-class RunData:
-    """One run's trajectory and scene, with the arrays every measurement reads computed once:
-    per body the sample arrays (`arrays`: t, x, q, v, w), the rigidly placed particles, their
-    distances to planes, and the conserved quantities."""
-
-    def __init__(self, traj: Trajectory, scene: Scene):
-        self.traj, self.scene = traj, scene
-        self._memo: dict = {}
-
-    def _cached(self, key, compute):
-        if key not in self._memo:
-            self._memo[key] = compute()
-        return self._memo[key]
-
-    def arrays(self, k: int) -> dict[str, np.ndarray]:
-        """`comparators.metrics.body_arrays` of body `k` (scene order)."""
-        return self._cached(
-            ("arrays", k), lambda: body_arrays(self.traj, self.scene.bodies[k].name)
-        )
-
-    def rigid(self, k: int) -> np.ndarray:
-        """(S,) True where the rigid placement is body k's particles (see the module doc)."""
-
-        def compute():
-            table = self.traj.table
-            if "shape_error" not in table:
-                return np.ones(len(self.arrays(k)["t"]), dtype=bool)
-            rows = table["body"].to_numpy() == self.scene.bodies[k].name
-            return table["shape_error"].to_numpy()[rows] <= RIGID_SHAPE_RTOL
-
-        return self._cached(("rigid", k), compute)
-
-    def particles(self, k: int) -> np.ndarray:
-        """(S, n, 3) world positions of body k's particles, placed rigidly from x and q."""
-
-        def compute():
-            body, a = self.scene.bodies[k], self.arrays(k)
-            r = quats_to_matrices(np.ascontiguousarray(a["q"]))
-            return a["x"][:, None, :] + np.einsum("sij,nj->sni", r, body.positions - body.com)
-
-        return self._cached(("particles", k), compute)
-
-    def distances(self, k: int, plane: Plane) -> np.ndarray:
-        """(S, n) signed distance (m) of body k's particle centres from `plane`, positive on its
-        free side; NaN at deforming samples."""
-
-        def compute():
-            d = (self.particles(k) - plane.point) @ plane.unit_normal
-            d[~self.rigid(k)] = np.nan
-            return d
-
-        return self._cached(("distances", k, plane), compute)
-
-    def clearance(self, k: int, plane: Plane) -> np.ndarray:
-        """(S,) gap (m) between `plane` and body k's lowest particle surface; negative when it
-        penetrates; NaN at deforming samples."""
-        radius = self.scene.bodies[k].particle_radius
-        return self._cached(
-            ("clearance", k, plane), lambda: self.distances(k, plane).min(axis=1) - radius
-        )
-
-    def conserved(self) -> pd.DataFrame:
-        """`comparators.metrics.conserved_quantities` of the run."""
-        return self._cached("conserved", lambda: conserved_quantities(self.traj, self.scene))
-
-    def finite(self) -> bool:
-        """True when every value of the table is finite."""
-
-        def compute():
-            values = self.traj.table.drop(columns=["body"]).to_numpy(dtype=float)
-            return bool(np.isfinite(values).all())
-
-        return self._cached("finite", compute)
-
-
-def particle_positions(traj: Trajectory, scene: Scene, body_index: int) -> np.ndarray:
-    """(S, n, 3) world positions of one body's particles at every sample, placed rigidly from
-    its COM x, orientation q and the particles' offsets from the COM at t = 0."""
-    return RunData(traj, scene).particles(body_index)
-
-
-def clearance(traj: Trajectory, scene: Scene, body_index: int, plane: Plane) -> np.ndarray:
-    """(S,) gap (m) between `plane` and the body's lowest particle surface (`RunData.clearance`)."""
-    return RunData(traj, scene).clearance(body_index, plane)
-
-
-def particle_speeds(run: RunData, k: int) -> np.ndarray:
-    """(S, n) speed (m/s) of each particle of rigidly moving body k: |v + omega x r|."""
-    a = run.arrays(k)
-    r = run.particles(k) - a["x"][:, None, :]
-    return np.linalg.norm(a["v"][:, None, :] + np.cross(a["w"][:, None, :], r), axis=-1)
-
-
-# ---- what the scene states ------------------------------------------------------------------
-
-
-def _contact_planes(scene: Scene) -> tuple[Plane, ...]:
-    return scene.planes if scene.contact is not None else ()
-
-
-def _plane_under(scene: Scene, body: Body) -> Plane | None:
-    """The plane a body starts nearest to among those facing against gravity: what it slides on."""
-    g = np.asarray(scene.gravity)
-    facing = [p for p in _contact_planes(scene) if np.dot(p.unit_normal, g) < 0]
-    if not facing:
-        return None
-    return min(facing, key=lambda p: ((body.positions - p.point) @ p.unit_normal).min())
-
-
-def final_window(t: np.ndarray) -> np.ndarray:
-    """(S,) True for the samples in the run's final window (FINAL_FRACTION, FINAL_WINDOW_S)."""
-    span = min(FINAL_WINDOW_S, FINAL_FRACTION * (t[-1] - t[0]))
-    return t >= t[-1] - span
-
-
-def _touching(scene: Scene, body: Body) -> bool:
-    """True when the body starts in contact: a particle surface within TOUCH_DISTANCE of a plane
-    or of another body's particle."""
-    for plane in _contact_planes(scene):
-        gap = ((body.positions - plane.point) @ plane.unit_normal).min() - body.particle_radius
-        if abs(gap) <= TOUCH_DISTANCE:
-            return True
-    for other in scene.bodies:
-        if other is not body:
-            d = np.linalg.norm(body.positions[:, None] - other.positions[None], axis=-1)
-            if d.min() - body.particle_radius - other.particle_radius <= TOUCH_DISTANCE:
-                return True
-    return False
-
-
-def _starts_at_rest(scene: Scene, body: Body) -> bool:
-    """Placed still and in contact: where it should stay, unlike a body dropped from rest."""
-    still = not any(body.velocity) and not any(body.angular_velocity)
-    return still and _touching(scene, body)
-
-
-def _expects_rest(scene: Scene) -> bool:
-    return scene.expected is not None and scene.expected.rest_com_height is not None
-
-
-# ---- verdict ---------------------------------------------------------------------------------
-
-
-def energy_scale(run: RunData) -> float:
-    """The energy the scene can put into motion (J): the initial kinetic energy plus, per body,
-    m |g| h, with h the body's COM height above the support plane (measured along gravity) or,
-    without one, its ballistic drop over the run. When that is 0 (nothing moves and nothing can
-    fall) it is the kinetic energy of the whole system moving at REST_SPEED."""
-    scene = run.scene
-    c = run.conserved()
-    t = c["t"].to_numpy()
-    kinetic = float(c["kinetic_translational"].iloc[0] + c["kinetic_rotational"].iloc[0])
-    g = np.asarray(scene.gravity, dtype=float)
-    g_norm = float(np.linalg.norm(g))
-    mass = sum(b.mass for b in scene.bodies)
-    floor = 0.5 * mass * REST_SPEED**2
-    if g_norm == 0.0:
-        return kinetic if kinetic > 0 else floor
-    down = g / g_norm
-    plane = support_plane(scene) if scene.contact is not None else None
-    up = -float(np.dot(plane.unit_normal, down)) if plane is not None else 0.0
-    duration = t[-1] - t[0]
-    drop = 0.0
-    for k, body in enumerate(scene.bodies):
-        a = run.arrays(k)
-        if up > 0:
-            h = float(np.dot(a["x"][0] - plane.point, plane.unit_normal)) / up
-        else:
-            h = max(0.0, float(np.dot(a["v"][0], down))) * duration + 0.5 * g_norm * duration**2
-        drop += body.mass * g_norm * max(h, 0.0)
-    scale = kinetic + drop
-    return scale if scale > 0 else floor
-
-
-def energy_growth(traj: Trajectory, scene: Scene, run: RunData | None = None) -> float:
-    """Largest gain of total energy over its initial value, relative to `energy_scale`."""
-    run = run or RunData(traj, scene)
-    energy = run.conserved()["energy"].to_numpy()
-    return float((energy.max() - energy[0]) / energy_scale(run))
-
-
-def tunnelled(run: RunData) -> bool:
-    """True when at some sample a particle's centre is behind a plane (its depth below the plane
-    exceeds its radius); at deforming samples, when the COM is."""
-    for k in range(len(run.scene.bodies)):
-        com = run.arrays(k)["x"][~run.rigid(k)]
-        for plane in _contact_planes(run.scene):
-            if (run.distances(k, plane) < 0).any():
-                return True
-            if ((com - plane.point) @ plane.unit_normal < 0).any():
-                return True
-    return False
-
-
-def jitters(run: RunData) -> bool:
-    """True when the scene expects rest and some body's particle moves faster than JITTER_SPEED
-    in the final window."""
-    if not _expects_rest(run.scene):
-        return False
-    for k in range(len(run.scene.bodies)):
-        window = final_window(run.arrays(k)["t"])
-        if (particle_speeds(run, k)[window] > JITTER_SPEED).any():
-            return True
-    return False
-
-
-def verdict(traj: Trajectory, scene: Scene, run: RunData | None = None) -> str:
-    """ "diverged", "tunnelled", "jitter" or "ok", in that precedence (see the module doc)."""
-    run = run or RunData(traj, scene)
-    if not run.finite():
-        return "diverged"
-    with np.errstate(over="ignore", invalid="ignore"):  # a blown-up run's energy overflows
-        if not energy_growth(traj, scene, run) <= ENERGY_GROWTH_LIMIT:
-            return "diverged"
-    if tunnelled(run):
-        return "tunnelled"
-    if jitters(run):
-        return "jitter"
-    return "ok"
 
 
 # ---- measurements ------------------------------------------------------------------------------
@@ -445,7 +192,7 @@ def slope_acceleration(run: RunData, body_index: int) -> tuple[float, bool]:
     when its COM speed at the end is at least STOP_SPEED. NaN, False: no plane with a downhill
     direction under it.
     """
-    plane = _plane_under(run.scene, run.scene.bodies[body_index])
+    plane = plane_under(run.scene, run.scene.bodies[body_index])
     if plane is None:
         return np.nan, False
     n = plane.unit_normal
@@ -481,7 +228,7 @@ def _slope_rows(run: RunData) -> list[tuple]:
 def _rest_height_rows(run: RunData) -> list[tuple]:
     """The final COM height above the support plane (`comparators.metrics.rest`)."""
     scene = run.scene
-    if not _expects_rest(scene):
+    if not expects_rest(scene):
         return []
     plane = support_plane(scene)
     rows = []
@@ -509,8 +256,8 @@ def resting(run: RunData) -> dict[str, float]:
     for k, body in enumerate(scene.bodies):
         a = run.arrays(k)
         window = final_window(a["t"])
-        origin = a["x"][0] if _starts_at_rest(scene, body) else a["x"][window][0]
-        stretch = slice(None) if _starts_at_rest(scene, body) else window
+        origin = a["x"][0] if starts_at_rest(scene, body) else a["x"][window][0]
+        stretch = slice(None) if starts_at_rest(scene, body) else window
         creep = max(creep, float(np.linalg.norm(a["x"][stretch] - origin, axis=1).max()))
         speed = np.linalg.norm(a["v"][window], axis=1)
         jitter = max(jitter, float(np.sqrt(np.mean(speed**2))))
@@ -525,7 +272,7 @@ def resting(run: RunData) -> dict[str, float]:
 def _rest_rows(run: RunData) -> list[tuple]:
     """Creep, jitter and steady penetration of a scene that expects rest, against 0: a rigid
     body at rest on a rigid floor stays exactly where it is, still and on the surface."""
-    if not _expects_rest(run.scene):
+    if not expects_rest(run.scene):
         return []
     r = resting(run)
     units = {"creep": "m", "jitter_rms": "m/s", "penetration": "m"}
@@ -538,9 +285,9 @@ def _is_stack(scene: Scene) -> bool:
     return (
         len(scene.bodies) > 1
         and scene.has_gravity
-        and bool(_contact_planes(scene))
+        and bool(contact_planes(scene))
         and not slope
-        and all(_starts_at_rest(scene, b) for b in scene.bodies)
+        and all(starts_at_rest(scene, b) for b in scene.bodies)
     )
 
 
@@ -576,7 +323,7 @@ def max_penetration(run: RunData) -> float:
     depths = [
         body.particle_radius - run.distances(k, plane)
         for k, body in enumerate(run.scene.bodies)
-        for plane in _contact_planes(run.scene)
+        for plane in contact_planes(run.scene)
     ]
     known = np.concatenate([d[np.isfinite(d)] for d in depths]) if depths else np.array([])
     return float(known.max()) if len(known) else np.nan
@@ -584,7 +331,7 @@ def max_penetration(run: RunData) -> float:
 
 def _penetration_rows(run: RunData) -> list[tuple]:
     """No closed form: how deep an impact goes is the contact model's (and the sampling's)."""
-    if not _contact_planes(run.scene):
+    if not contact_planes(run.scene):
         return []
     return [("max_penetration", max_penetration(run), np.nan, "m")]
 

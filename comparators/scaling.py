@@ -20,7 +20,6 @@ import pandas as pd
 
 from cases.catalog import cube_rain
 from comparators.engine import ENGINES
-from comparators.outcomes import verdict
 from comparators.timing import (
     LONG_RUN_S,
     SCALING_REPEATS,
@@ -29,6 +28,7 @@ from comparators.timing import (
     spread,
     wants_another_timing,
 )
+from comparators.verdict import verdict
 
 # Cube counts. Full: half-decade steps from 1 to the family's largest N. Quick: decades to 100.
 FULL_COUNTS = (1, 3, 10, 30, 100, 300, 1000)
@@ -68,7 +68,7 @@ SCALING_COLUMNS = [
     "cost_per_step_s",  # wall_s / steps
     "cost_per_body_step_s",  # wall_s / (steps * n_bodies)
     "setup_s",  # median over repeats: model building and compilation
-    "verdict",  # "ok", "diverged", "tunnelled", "jitter" (comparators.outcomes), "failed: ..."
+    "verdict",  # "ok", "diverged", "tunnelled", "jitter" (comparators.verdict), "failed: ..."
 ]
 PLATEAU_COLUMNS = [
     "engine",

@@ -1,5 +1,5 @@
 """One run's headline numbers, the row a sweep or `rigidbench run` shows: its timing and
-solver report, the metrics (`comparators.metrics`) and the verdict (`comparators.outcomes`).
+solver report, the metrics (`comparators.metrics`) and the verdict (`comparators.verdict`).
 """
 
 from __future__ import annotations
@@ -9,15 +9,15 @@ import numpy as np
 from cases.exact import exact_states, exact_trajectory_available
 from cases.scene import Scene
 from comparators.metrics import body_arrays, drifts, pose_errors, rest
-from comparators.outcomes import verdict
 from comparators.trajectory import Trajectory
+from comparators.verdict import verdict
 
 
 def summarize(traj: Trajectory, scene: Scene) -> dict[str, float | str | bool]:
     """One run's headline numbers: speed, drifts, pose error against the exact solution where
     the scene has one (largest over the run, and the orientation error at the end), largest
     shape error (deforming engines), rest (where the scene predicts a rest height) and the
-    verdict (`comparators.outcomes.verdict`: ok, diverged, tunnelled or jitter)."""
+    verdict (`comparators.verdict.verdict`: ok, diverged, tunnelled or jitter)."""
     m = traj.meta
     out: dict[str, float | str | bool] = {
         "case": m.case,

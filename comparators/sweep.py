@@ -73,7 +73,7 @@ RESULT_COLUMNS = [
     "shape_error",  # seed only, else NaN
     "rest_com_height",  # where the case predicts rest, else NaN
     "rest_height_error",
-    "verdict",  # "ok", "diverged", "tunnelled", "jitter" (comparators.outcomes), "failed: ..."
+    "verdict",  # "ok", "diverged", "tunnelled", "jitter" (comparators.verdict), "failed: ..."
     "engine_version",
     "code_version",
     "key",  # results-cache key; indexes SweepResult.trajectories

@@ -6,8 +6,9 @@ the others are constants, with the thresholds they quote read from where those a
 
 from __future__ import annotations
 
-from comparators.outcomes import ENERGY_GROWTH_LIMIT, FINAL_FRACTION, FINAL_WINDOW_S, JITTER_SPEED
+from comparators.run_data import FINAL_FRACTION, FINAL_WINDOW_S
 from comparators.scaling import PLATEAU_FACTOR
+from comparators.verdict import ENERGY_GROWTH_LIMIT, JITTER_SPEED
 from reports.convergence import ERROR_CEILING_DEG, ERROR_FLOOR_DEG, MIN_FIT_POINTS, POSITION_FLOOR_M
 from reports.tables import EMPTY_CELL
 

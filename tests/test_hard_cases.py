@@ -8,7 +8,8 @@ import pytest
 
 from cases import CATALOG
 from comparators import ENGINES, run
-from comparators.outcomes import outcomes, verdict
+from comparators.outcomes import outcomes
+from comparators.verdict import verdict
 from reference_sim.contact.settings import solver_tolerance
 
 RIGID = ("euler", "splitting", "rk4")

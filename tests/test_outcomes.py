@@ -16,18 +16,9 @@ from cases import CATALOG, Body, Contact, Expected, Scene
 from cases.builders import floor, seed_cube_particles
 from cases.exact import exact_states
 from comparators import RunMeta, Trajectory, run
-from comparators.outcomes import (
-    ENERGY_GROWTH_LIMIT,
-    JITTER_SPEED,
-    OUTCOME_COLUMNS,
-    STAND_DISTANCE,
-    RunData,
-    bounces,
-    energy_growth,
-    outcomes,
-    particle_positions,
-    verdict,
-)
+from comparators.outcomes import OUTCOME_COLUMNS, STAND_DISTANCE, bounces, outcomes
+from comparators.run_data import RunData, particle_positions
+from comparators.verdict import ENERGY_GROWTH_LIMIT, JITTER_SPEED, energy_growth, verdict
 from rigidmath.quaternion import quat_from_rotvec, quat_to_matrix
 
 G = 10.0

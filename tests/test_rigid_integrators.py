@@ -8,7 +8,7 @@ from cases.builders import box_corners
 from cases.exact import exact_states
 from comparators import run
 from comparators.metrics import body_arrays, conserved_quantities, pose_errors, relative_drift
-from comparators.outcomes import particle_positions
+from comparators.run_data import particle_positions
 from reference_sim.simulate import ORDERS
 
 RIGID = ("euler", "splitting", "rk4")
