@@ -1,13 +1,13 @@
 """One engine interface for every engine, and the registry of engines by name.
 
-The registry `ENGINES` is filled by `register`; `register_engines` loads engines from a table of
-names to "module:Class" targets, the form an entry point takes. The built-in engines are the
-table `BUILT_IN_ENGINES`, loaded when this module is first imported.
+Engines are discovered through the entry-point group `rigidbench.engines` (name = "module:Class"),
+the built-in ones included (rigidbench's own `pyproject.toml` declares them), when this module is
+first imported. A plugin that fails to load is registered as an `UnloadableEngine`: listed with
+its reason, never run, and never in the way of the others.
 """
 
-import importlib
 import math
-from collections.abc import Mapping
+from importlib import metadata
 from typing import Protocol
 
 from cases.errors import InputError
@@ -34,12 +34,21 @@ class Engine(Protocol):
 
 
 ENGINES: dict[str, Engine] = {}
-# The engines shipped with the suite, in the order tables list them: name -> "module:Class".
-BUILT_IN_ENGINES = {
-    "mujoco": "comparators.mujoco_engine:MujocoEngine",
-    "pybullet": "comparators.pybullet_engine:PybulletEngine",
-    "reference": "comparators.reference:ReferenceEngine",
-}
+ENTRY_POINT_GROUP = "rigidbench.engines"
+
+
+class UnloadableEngine:
+    """A plugin that failed to load: `missing` says which and why; it has nothing to run."""
+
+    integrators: tuple[str, ...] = ()
+    default_integrator = "-"
+    orders: dict[str, int] = {}
+
+    def __init__(self, name: str, missing: str):
+        self.name, self.missing = name, missing
+
+    def run(self, scene: Scene, integrator: str, dt: float, duration: float) -> Trajectory:
+        raise RuntimeError(self.missing)
 
 
 def failure_reason(exc: Exception) -> str:
@@ -55,22 +64,34 @@ def register(engine: Engine) -> Engine:
     return engine
 
 
-def load_engine(target: str) -> Engine:
-    """The engine a "module:Class" target names: the class imported and instantiated."""
-    module, _, attribute = target.partition(":")
-    return getattr(importlib.import_module(module), attribute)()
+def load_engine(entry_point: metadata.EntryPoint) -> Engine:
+    """The engine an entry point names, instantiated; an `UnloadableEngine` saying why when
+    importing or instantiating it raises, or when it calls itself by another name."""
+    where = f"plugin {entry_point.value!r}"
+    try:
+        engine = entry_point.load()()
+    except Exception as exc:  # a broken plugin must not stop the suite: say why, go on
+        return UnloadableEngine(entry_point.name, f"{where} failed to load: {failure_reason(exc)}")
+    if getattr(engine, "name", None) != entry_point.name:
+        name = getattr(engine, "name", None)
+        return UnloadableEngine(
+            entry_point.name, f"{where} is named {name!r}, registered as {entry_point.name!r}"
+        )
+    return engine
 
 
-def register_engines(targets: Mapping[str, str]) -> None:
-    """`register` the engine of every name -> "module:Class" target, in order."""
-    for name, target in targets.items():
-        engine = load_engine(target)
-        if engine.name != name:
-            raise ValueError(f"engine {target!r} is named {engine.name!r}, registered as {name!r}")
-        register(engine)
+def register_engines(entry_points) -> None:
+    """`register` the engine of every entry point, by name (the order tables list them)."""
+    for entry_point in sorted(entry_points, key=lambda e: e.name):
+        register(load_engine(entry_point))
 
 
 def get_engine(name: str) -> Engine:
+    if not ENGINES:  # no entry points: the package's metadata is missing or predates them
+        raise InputError(
+            f"unknown engine {name!r}: no engine is registered; install rigidbench "
+            f"(pip install -e .) so that its entry points {ENTRY_POINT_GROUP!r} exist"
+        )
     try:
         return ENGINES[name]
     except KeyError:
@@ -86,10 +107,13 @@ def run(
 ) -> Trajectory:
     """Run `scene` on the named engine; None means the engine's or the scene's default.
 
-    Bad names and non-positive or non-finite dt or duration raise `InputError`; a model that
+    Bad names, an unavailable engine (`missing`: its package absent, or a plugin that failed to
+    load), and non-positive or non-finite dt or duration raise `InputError`; a model that
     differs from the scene at t = 0 raises `comparators.parity.ParityError`.
     """
     eng = get_engine(engine)
+    if eng.missing:
+        raise InputError(f"engine {engine!r} is unavailable: {eng.missing}")
     integrator = eng.default_integrator if integrator is None else integrator
     if integrator not in eng.integrators:
         raise InputError(
@@ -108,4 +132,4 @@ def run(
     return traj
 
 
-register_engines(BUILT_IN_ENGINES)
+register_engines(metadata.entry_points(group=ENTRY_POINT_GROUP))
