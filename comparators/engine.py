@@ -13,7 +13,7 @@ from typing import Protocol
 from cases.errors import InputError
 from cases.scene import Scene
 from comparators.parity import ParityError, check_parity
-from comparators.trajectory import Trajectory
+from comparators.trajectory import COLUMNS, Trajectory
 
 
 class Engine(Protocol):
@@ -35,6 +35,32 @@ class Engine(Protocol):
 
 ENGINES: dict[str, Engine] = {}
 ENTRY_POINT_GROUP = "rigidbench.engines"
+
+
+class ContractError(RuntimeError):
+    """An engine returned something other than the suite's trajectory table for the scene: a bug
+    in its adapter (or plugin), not in the input; the message names the engine and what is off."""
+
+
+def check_contract(scene: Scene, engine: str, traj: object) -> None:
+    """Raise `ContractError` unless `traj` is a `Trajectory` with every column of `COLUMNS` and
+    rows for exactly the scene's bodies."""
+    if not isinstance(traj, Trajectory):
+        raise ContractError(
+            f"engine {engine!r} returned {type(traj).__name__}: expected a Trajectory"
+        )
+    absent = [c for c in COLUMNS if c not in traj.table.columns]
+    if absent:
+        raise ContractError(
+            f"engine {engine!r} returned a table without {', '.join(absent)}: "
+            f"expected the columns {', '.join(COLUMNS)}"
+        )
+    bodies, expected = set(traj.bodies), {b.name for b in scene.bodies}
+    if bodies != expected:
+        raise ContractError(
+            f"engine {engine!r} returned rows for bodies {sorted(bodies)}: "
+            f"expected the scene's {sorted(expected)}"
+        )
 
 
 class UnloadableEngine:
@@ -108,8 +134,9 @@ def run(
     """Run `scene` on the named engine; None means the engine's or the scene's default.
 
     Bad names, an unavailable engine (`missing`: its package absent, or a plugin that failed to
-    load), and non-positive or non-finite dt or duration raise `InputError`; a model that
-    differs from the scene at t = 0 raises `comparators.parity.ParityError`.
+    load), and non-positive or non-finite dt or duration raise `InputError`; a result that is not
+    the trajectory table of the scene's bodies raises `ContractError`, and a model that differs
+    from the scene at t = 0 `comparators.parity.ParityError`.
     """
     eng = get_engine(engine)
     if eng.missing:
@@ -128,6 +155,7 @@ def run(
     if dt > duration:
         raise InputError(f"dt {dt} is longer than duration {duration}: expected dt <= duration")
     traj = eng.run(scene, integrator, float(dt), float(duration))
+    check_contract(scene, engine, traj)
     check_parity(scene, traj.meta)
     return traj
 

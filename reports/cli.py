@@ -18,13 +18,14 @@ from rich.table import Table
 from cases import CATALOG, InputError, resolve_case, scene_to_toml
 from cases.catalog import CUBE_RAIN_MAX, CUBE_RAIN_PREFIX, CUBE_RAIN_REPRESENTATIVE
 from comparators import ENGINES, get_engine, run
+from comparators.engine import ContractError
 from comparators.parity import ParityError
 from comparators.summary import summarize
 from comparators.trajectory import atomic_path
 from reports.arguments import build_parser
 
 EXIT_BAD_INPUT = 2
-EXIT_PARITY = 3  # an engine's model is not the scene: a bug in an adapter, not in the input
+EXIT_PARITY = 3  # an engine's model or table is not the scene's: a bug in an adapter, not the input
 
 
 # ---- shared by the commands -------------------------------------------------------------------
@@ -241,6 +242,9 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except ParityError as exc:
         print(f"rigidbench: parity error: {exc}", file=sys.stderr)
+        return EXIT_PARITY
+    except ContractError as exc:
+        print(f"rigidbench: engine error: {exc}", file=sys.stderr)
         return EXIT_PARITY
     return 0
 

@@ -6,8 +6,8 @@ from importlib import metadata
 import pytest
 
 from cases import CATALOG, InputError
+from comparators import Trajectory, run
 from comparators import engine as registry
-from comparators import run
 from reports.cli import main
 
 BUILT_IN = {"mujoco", "pybullet", "reference"}
@@ -60,3 +60,43 @@ def test_without_any_entry_point_the_error_says_to_install(monkeypatch):
     monkeypatch.setattr(registry, "ENGINES", {})
     with pytest.raises(InputError, match="no engine is registered; install rigidbench"):
         registry.get_engine("reference")
+
+
+class _WrongTables:
+    """A plugin engine whose `run` returns tables that break the contract in `flaw`'s way."""
+
+    name = "wrong_tables"
+    integrators = ("no_columns", "no_body", "not_a_trajectory")
+    default_integrator = "no_columns"
+    orders = {i: 1 for i in integrators}
+    missing = None
+
+    def run(self, scene, integrator, dt, duration):
+        good = run(scene, "reference", "euler", dt, duration)
+        if integrator == "no_columns":
+            return Trajectory(good.table.drop(columns=["qw", "wz"]), good.meta)
+        if integrator == "no_body":
+            return Trajectory(good.table[good.table["body"] != scene.bodies[0].name], good.meta)
+        return good.table
+
+
+@pytest.mark.parametrize(
+    ("flaw", "message"),
+    [
+        ("no_columns", "returned a table without qw, wz: expected the columns t, body"),
+        ("no_body", "returned rows for bodies"),
+        ("not_a_trajectory", "returned DataFrame: expected a Trajectory"),
+    ],
+)
+def test_a_table_that_breaks_the_contract_is_refused_by_name(monkeypatch, flaw, message):
+    monkeypatch.setitem(registry.ENGINES, "wrong_tables", _WrongTables())
+    with pytest.raises(registry.ContractError, match=f"engine 'wrong_tables' {message}"):
+        run(CATALOG["cube_collision"], "wrong_tables", flaw, duration=0.1)
+
+
+def test_the_cli_reports_a_broken_table_as_one_engine_error_line(monkeypatch, capsys):
+    monkeypatch.setitem(registry.ENGINES, "wrong_tables", _WrongTables())
+    args = ["run", "cube_collision", "--engine", "wrong_tables", "--integrator", "no_body"]
+    assert main([*args, "--duration", "0.1"]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("rigidbench: engine error: engine 'wrong_tables'")
