@@ -98,8 +98,8 @@ def load_engine(entry_point: metadata.EntryPoint) -> Engine:
         engine = entry_point.load()()
     except Exception as exc:  # a broken plugin must not stop the suite: say why, go on
         return UnloadableEngine(entry_point.name, f"{where} failed to load: {failure_reason(exc)}")
-    if getattr(engine, "name", None) != entry_point.name:
-        name = getattr(engine, "name", None)
+    name = getattr(engine, "name", None)
+    if name != entry_point.name:
         return UnloadableEngine(
             entry_point.name, f"{where} is named {name!r}, registered as {entry_point.name!r}"
         )

@@ -50,23 +50,22 @@ class RunTimer:
         self.setup_s = 0.0
         self.wall_s = 0.0
 
-    @contextmanager
-    def setup(self) -> Iterator[None]:
+    def setup(self):
         """Time the block as model building (`setup_s`)."""
-        start = time.perf_counter()
-        try:
-            yield
-        finally:
-            self.setup_s += time.perf_counter() - start
+        return self._timed("setup_s")
+
+    def stepping(self):
+        """Time the block as stepping (`wall_s`)."""
+        return self._timed("wall_s")
 
     @contextmanager
-    def stepping(self) -> Iterator[None]:
-        """Time the block as stepping (`wall_s`)."""
+    def _timed(self, attribute: str) -> Iterator[None]:
+        """Add the block's wall time to `attribute`, also when the block raises."""
         start = time.perf_counter()
         try:
             yield
         finally:
-            self.wall_s += time.perf_counter() - start
+            setattr(self, attribute, getattr(self, attribute) + time.perf_counter() - start)
 
     def add_times(self, setup_s: float, wall_s: float) -> None:
         """Add times an engine measured itself (the reference simulator times its compilation

@@ -63,10 +63,17 @@ def _add_run(sub) -> None:
     run_p.add_argument("--out", help="write the trajectory table to FILE.csv or FILE.parquet")
 
 
+def _add_selection(parser) -> None:
+    """The cases and engines a report or a bench covers."""
+    parser.add_argument(
+        "--cases", nargs="+", help="catalog names or .toml files (default: catalog)"
+    )
+    parser.add_argument("--engines", nargs="+", help="engine names (default: every available one)")
+
+
 def _add_report(sub) -> None:
     rep = sub.add_parser("report", help="sweep case x engine x integrator x dt; write the report")
-    rep.add_argument("--cases", nargs="+", help="catalog names or .toml files (default: catalog)")
-    rep.add_argument("--engines", nargs="+", help="engine names (default: every available one)")
+    _add_selection(rep)
     rep.add_argument(
         "--quick",
         action="store_true",
@@ -89,8 +96,7 @@ def _add_report(sub) -> None:
 
 def _add_bench(sub) -> None:
     ben = sub.add_parser("bench", help="steps/s of case x engine x integrator, side by side")
-    ben.add_argument("--cases", nargs="+", help="catalog names or .toml files (default: catalog)")
-    ben.add_argument("--engines", nargs="+", help="engine names (default: every available one)")
+    _add_selection(ben)
     ben.add_argument(
         "--dt",
         type=parse_positive_number,
