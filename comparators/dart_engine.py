@@ -37,10 +37,13 @@ except ImportError as exc:  # the module always imports; the engine says why it 
     dart = None
     UNAVAILABLE = f"dartpy cannot be imported ({exc}): pip install 'rigidbench[dart]'"
 
-# Contact solver per "integrator": (primary boxed LCP solver, fallback when the primary fails).
+# Contact solver per "integrator": (primary boxed LCP solver, fallback run when the primary
+# fails). "pgs" is what DART's own BoxedLcpConstraintSolver(pgs) constructor sets up: a second
+# PGS as fallback, whose result DART uses whenever it is finite. Without a fallback DART zeroes
+# every contact impulse of a step whose solve failed (docs/engines/dart.md).
 SOLVERS = {
     "dantzig": ("DantzigBoxedLcpSolver", "PgsBoxedLcpSolver"),
-    "pgs": ("PgsBoxedLcpSolver", None),
+    "pgs": ("PgsBoxedLcpSolver", "PgsBoxedLcpSolver"),
 }
 # Semi-implicit Euler whatever the contact solver: first order in dt.
 ORDERS = {"dantzig": 1, "pgs": 1}
@@ -64,8 +67,9 @@ CONTACT_CONSTANTS = {
 MAX_VALUE = 1e10
 
 
-# DART's message when a boxed LCP solve fails (it then tries the fallback, or zeroes impulses).
-LCP_FAILURE = "LCP solver failed"
+# DART's messages when a step's contact solve failed for good (the primary without a fallback, or
+# a fallback whose result has NaN): all contact impulses of that step are set to zero.
+LCP_FAILURE = "zero for safety"
 
 
 @contextmanager
@@ -87,8 +91,8 @@ def _stderr_captured(lines: list[str]):
 
 
 def _solver_report(lines: list[str]) -> dict[str, float]:
-    """`RunMeta.solver`: contact solves DART reported as failed (`at_limit`); every other line
-    DART wrote goes on to stderr, unhidden."""
+    """`RunMeta.solver`: contact solves DART gave up on, zeroing their impulses (`at_limit`);
+    every other line DART wrote goes on to stderr, unhidden."""
     failed = sum(LCP_FAILURE in line for line in lines)
     others = [line for line in lines if LCP_FAILURE not in line]
     if others:
@@ -100,20 +104,23 @@ def _world_frame():
     return dart.dynamics.Frame.World()
 
 
-def _set_solver(world, integrator: str) -> dict:
-    """Install the contact solver `integrator` names; its settings for the manifest."""
-    solver = world.getConstraintSolver()
-    dantzig, pgs = solver.getBoxedLcpSolver(), solver.getSecondaryBoxedLcpSolver()
-    # dartpy exposes no constructors for these two: reuse the instances a new world holds.
-    if {dantzig.getType(), pgs.getType()} != {"DantzigBoxedLcpSolver", "PgsBoxedLcpSolver"}:
-        raise RuntimeError(
-            f"dartpy: a new world holds {dantzig.getType()} / {pgs.getType()}, expected "
-            "DantzigBoxedLcpSolver with a PgsBoxedLcpSolver fallback"
-        )
+def _new_pgs():
+    """A PgsBoxedLcpSolver with `PGS_OPTIONS`: dartpy binds no constructor for the boxed LCP
+    solvers, so it is the fallback instance a new world holds."""
+    pgs = dart.simulation.World().getConstraintSolver().getSecondaryBoxedLcpSolver()
     pgs.setOption(dart.constraint.PgsBoxedLcpSolverOption(*PGS_OPTIONS))
+    return pgs
+
+
+def _set_solver(world, integrator: str) -> dict:
+    """Install the contact solver `integrator` names, checked; its settings for the manifest."""
+    solver = world.getConstraintSolver()
     if integrator == "pgs":
-        solver.setSecondaryBoxedLcpSolver(None)  # first: DART refuses primary == secondary
-        solver.setBoxedLcpSolver(pgs)
+        primary = _new_pgs()  # not the world's fallback: DART refuses primary == secondary
+        solver.setSecondaryBoxedLcpSolver(_new_pgs())
+        solver.setBoxedLcpSolver(primary)
+    else:
+        solver.setSecondaryBoxedLcpSolver(_new_pgs())  # DART's default, with our options
     primary, secondary = solver.getBoxedLcpSolver(), solver.getSecondaryBoxedLcpSolver()
     got = (primary.getType(), None if secondary is None else secondary.getType())
     if got != SOLVERS[integrator]:
@@ -122,6 +129,7 @@ def _set_solver(world, integrator: str) -> dict:
         "constraint_solver": type(solver).__name__,
         "boxed_lcp_solver": got[0],
         "fallback_lcp_solver": got[1],
+        "fallback_use": "when the primary fails; its result is used when finite",
         "pgs_options": dict(
             zip(
                 (

@@ -337,15 +337,29 @@ def test_quaternions_from_matrices_match_rigidmath():
 
 
 @pytest.mark.parametrize("integrator", INTEGRATORS)
-def test_solver_is_the_one_named_and_its_failures_are_counted(integrator, capfd):
-    """dantzig: Dantzig with DART's PGS fallback, no failures on dropped_cube; pgs: PGS alone,
-    whose failed solves (DART then zeroes the contact impulses) are counted, not printed."""
+def test_solver_is_the_one_named_with_a_fallback(integrator):
     traj = run(CATALOG["dropped_cube"], "dart", integrator)
     s = traj.meta.settings
     assert (s["boxed_lcp_solver"], s["fallback_lcp_solver"]) == de.SOLVERS[integrator]
-    assert s["split_impulse"] is False
+    assert s["split_impulse"] is False and s["matrix_free_contact_solver"] is False
     assert s["contact"]["collision_detector"] == "FCLCollisionDetector"
-    failed = traj.meta.solver["at_limit"]
-    assert failed == 0 if integrator == "dantzig" else failed > 0
-    assert de.LCP_FAILURE not in capfd.readouterr().err
+    assert traj.meta.solver == {"at_limit": 0}
     assert "dartpy" in traj.meta.versions
+
+
+def test_pgs_without_a_fallback_zeroes_impulses_and_is_counted(capfd):
+    """Why "pgs" keeps DART's second PGS as fallback: PGS alone fails a few solves on
+    dropped_cube at dt 0.01 (measured 4, at 2.16 s, 2.52 s, 3.52 s, 4.52 s), DART then zeroes
+    that step's contact impulses and the resting cube drops by g dt^2 = 1 mm each time. The
+    adapter counts those messages (`at_limit`) instead of printing them."""
+    scene = CATALOG["dropped_cube"]
+    world, nodes, _ = de.build_world(scene, "pgs", scene.dt)
+    world.getConstraintSolver().setSecondaryBoxedLcpSolver(None)
+    messages = []
+    with de._stderr_captured(messages):
+        for _ in range(scene.steps(scene.dt)):
+            world.step()
+    assert de._solver_report(messages)["at_limit"] > 0
+    assert de.LCP_FAILURE not in capfd.readouterr().err
+    rest_height = scene.expected.rest_com_height
+    assert nodes[0].getWorldTransform().translation()[2] < rest_height - 1e-3
