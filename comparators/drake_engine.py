@@ -79,9 +79,11 @@ CONTACT_OMEGA = 100.0
 # e = 0 has no finite Hunt-Crossley dissipation (e ~ 1 / (d v) for large d v): it is mapped as
 # this e, the rebound a dissipation of about 1 / E_FLOOR times the impact speed leaves.
 E_FLOOR = 0.05
-# Impact speed used for the mapping when the scene's initial state predicts no impact (bodies
-# at rest on a plane, or moving apart), m/s.
+# Impact speed used for the mapping when the scene's initial state predicts no impact faster
+# than MIN_IMPACT_SPEED (bodies placed on a plane, whose clearance is 0 up to rounding, or
+# moving apart), m/s: a rounding-level speed would give an unbounded dissipation.
 FALLBACK_IMPACT_SPEED = 1.0
+MIN_IMPACT_SPEED = 0.01
 # Stribeck stiction tolerance (m/s) of TAMSI and the continuous plant (SAP regularises friction
 # its own way and ignores it): MultibodyPlantConfig's default.
 STICTION_TOLERANCE = 1e-4
@@ -157,7 +159,8 @@ def _first_contact_speed(clearance: float, v_n: float, g_n: float) -> float:
 def impact_speed(scene: Scene) -> float:
     """The largest normal speed of the first impacts the scene's initial state predicts: each
     body's lowest particle falling ballistically onto each plane (rotation ignored), and each
-    pair of bodies approaching along the line of their COMs; FALLBACK_IMPACT_SPEED if none."""
+    pair of bodies approaching along the line of their COMs; FALLBACK_IMPACT_SPEED if none is
+    faster than MIN_IMPACT_SPEED."""
     g = np.asarray(scene.gravity, dtype=float)
     speeds = [0.0]
     for body in scene.bodies:
@@ -173,7 +176,7 @@ def impact_speed(scene: Scene) -> float:
             u = line / np.linalg.norm(line)
             speeds.append(max(0.0, -float(np.dot(np.subtract(b.velocity, a.velocity), u))))
     speed = max(speeds)
-    return speed if speed > 0.0 else FALLBACK_IMPACT_SPEED
+    return speed if speed >= MIN_IMPACT_SPEED else FALLBACK_IMPACT_SPEED
 
 
 @dataclasses.dataclass(frozen=True)
