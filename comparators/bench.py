@@ -26,7 +26,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from cases.errors import InputError
 from cases.scene import Scene
-from comparators.engine import ENGINES, get_engine
+from comparators.engine import ENGINES, get_engine, unsupported
 from comparators.timing import BENCH_REPEATS, MIN_REPEATS, attempt_run, interleaved, spread
 from comparators.verdict import verdict
 
@@ -81,7 +81,8 @@ def plan_bench(
     duration: float | None = None,
 ) -> list[list[BenchRun]]:
     """The runs, one block per case and dt, each listing every engine/integrator in registry
-    order. `dts` None: each scene's own dt. Bad names, dt or duration raise InputError."""
+    order, leaving out engines that do not model the scene. `dts` None: each scene's own dt.
+    Bad names, dt or duration raise InputError."""
     for name in engines:
         get_engine(name)
     dts = None if dts is None else list(dts)
@@ -97,13 +98,14 @@ def plan_bench(
                     f"dt {dt:g} is longer than the {length:g} s simulated for {scene.name!r}: "
                     "expected dt <= duration"
                 )
-            blocks.append(
-                [
-                    BenchRun(scene, name, integrator, float(dt), float(length))
-                    for name in engines
-                    for integrator in ENGINES[name].integrators
-                ]
-            )
+            block = [
+                BenchRun(scene, name, integrator, float(dt), float(length))
+                for name in engines
+                if not unsupported(ENGINES[name], scene)
+                for integrator in ENGINES[name].integrators
+            ]
+            if block:
+                blocks.append(block)
     return blocks
 
 

@@ -30,6 +30,9 @@ class Engine(Protocol):
     orders: dict[str, int]  # the convergence order each integrator should show in dt
     missing: str | None  # why the engine cannot run here (its package is absent), else None
 
+    # Optional: `unsupported(scene) -> str | None`, why the engine cannot model `scene` (for
+    # example contact), else None. Sweeps, benches and scaling leave such runs out and say so.
+
     def run(self, scene: Scene, integrator: str, dt: float, duration: float) -> Trajectory: ...
 
 
@@ -112,6 +115,32 @@ def register_engines(entry_points) -> None:
         register(load_engine(entry_point))
 
 
+def unsupported(engine: Engine, scene: Scene) -> str | None:
+    """Why `engine` cannot model `scene` (its optional `unsupported` method), else None; a
+    method that raises counts as a refusal, with its reason."""
+    check = getattr(engine, "unsupported", None)
+    if check is None:
+        return None
+    try:
+        return check(scene)
+    except Exception as exc:  # a broken plugin must not stop a sweep's planning
+        return f"its unsupported() raised {failure_reason(exc)}"
+
+
+def left_out(scenes: list[Scene], engines: list[str]) -> list[str]:
+    """One line per engine the registry holds but cannot run here (why: its `missing`), and per
+    selected engine and reason the cases it cannot model."""
+    lines = [f"{n}: {e.missing}" for n, e in ENGINES.items() if n not in engines and e.missing]
+    for name in engines:
+        refused: dict[str, list[str]] = {}
+        for scene in scenes:
+            reason = unsupported(ENGINES[name], scene)
+            if reason:
+                refused.setdefault(reason, []).append(scene.name)
+        lines += [f"{name} on {', '.join(c)}: {reason}" for reason, c in refused.items()]
+    return lines
+
+
 def get_engine(name: str) -> Engine:
     if not ENGINES:  # no entry points: the package's metadata is missing or predates them
         raise InputError(
@@ -134,13 +163,17 @@ def run(
     """Run `scene` on the named engine; None means the engine's or the scene's default.
 
     Bad names, an unavailable engine (`missing`: its package absent, or a plugin that failed to
-    load), and non-positive or non-finite dt or duration raise `InputError`; a result that is not
-    the trajectory table of the scene's bodies raises `ContractError`, and a model that differs
-    from the scene at t = 0 `comparators.parity.ParityError`.
+    load), a scene the engine does not model (`unsupported`), and non-positive or non-finite dt
+    or duration raise `InputError`; a result that is not the trajectory table of the scene's
+    bodies raises `ContractError`, and a model that differs from the scene at t = 0
+    `comparators.parity.ParityError`.
     """
     eng = get_engine(engine)
     if eng.missing:
         raise InputError(f"engine {engine!r} is unavailable: {eng.missing}")
+    refusal = unsupported(eng, scene)
+    if refusal:
+        raise InputError(f"engine {engine!r} cannot run {scene.name!r}: {refusal}")
     integrator = eng.default_integrator if integrator is None else integrator
     if integrator not in eng.integrators:
         raise InputError(

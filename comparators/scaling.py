@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 
 from cases.catalog import cube_rain
-from comparators.engine import ENGINES
+from comparators.engine import ENGINES, unsupported
 from comparators.timing import (
     LONG_RUN_S,
     SCALING_REPEATS,
@@ -81,10 +81,14 @@ PLATEAU_COLUMNS = [
 ]
 
 
-def _pairs(engines: Sequence[str], all_integrators: bool) -> list[tuple[str, str]]:
+def _pairs(engines: Sequence[str], all_integrators: bool, scene) -> list[tuple[str, str]]:
+    """(engine, integrator) pairs to measure: engines that model `scene`, default integrator
+    or all."""
     pairs = []
     for name in engines:
         engine = ENGINES[name]
+        if unsupported(engine, scene):
+            continue
         chosen = engine.integrators if all_integrators else (engine.default_integrator,)
         pairs += [(name, integrator) for integrator in chosen]
     return pairs
@@ -114,9 +118,9 @@ def measure_scaling(
     trajectory. `progress` is called with a label before every run.
     """
     engines = [n for n, e in ENGINES.items() if not e.missing] if engines is None else engines
-    pairs = _pairs(engines, all_integrators)
-    report = progress or (lambda label: None)
     smallest = cube_rain(min(counts))
+    pairs = _pairs(engines, all_integrators, smallest)
+    report = progress or (lambda label: None)
     for engine, integrator in pairs:  # loads compiled code and libraries; nothing is kept
         report(f"warm-up {engine} {integrator}")
         _attempt_window(smallest, engine, integrator, WARM_UP_STEPS)

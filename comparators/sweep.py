@@ -37,7 +37,7 @@ from cases.errors import InputError
 from cases.exact import exact_trajectory_available
 from cases.scene import Scene
 from comparators.cache import ResultsCache, code_version, run_key
-from comparators.engine import ENGINES
+from comparators.engine import ENGINES, unsupported
 from comparators.metrics import pose_errors_between
 from comparators.outcomes import OUTCOME_COLUMNS, outcomes
 from comparators.summary import summarize
@@ -104,6 +104,8 @@ class SweepResult:
       elapsed_s: wall time of the whole sweep; machine: CPU, cores, Python and library versions.
       executor: how runs were executed ("local process pool, 2 workers", "dask at ...").
       computed, cached: how many runs were computed now and how many came from the cache.
+      left_out: engines that could not run here and cases an engine does not model, one line
+        each saying why.
     """
 
     scenes: dict[str, Scene]
@@ -117,6 +119,7 @@ class SweepResult:
     cached: int = 0
     orders: dict[tuple[str, str], int] = field(default_factory=dict)  # (engine, integrator)
     outcomes: pd.DataFrame = field(default_factory=empty_outcomes)
+    left_out: list[str] = field(default_factory=list)  # `comparators.engine.left_out`
 
 
 # dt sweeps as multiples of each case's default dt. Full: two octaves coarser and four finer
@@ -162,7 +165,8 @@ def plan(
 
     dt sweeps are `dt_factors` times each scene's dt; by default the full factors, or with
     `quick` the quick ones, and for scenes tagged "hard" or longer than QUICK_LONG_S
-    QUICK_HARD_DT_FACTORS with at most QUICK_HARD_REPEATS timings.
+    QUICK_HARD_DT_FACTORS with at most QUICK_HARD_REPEATS timings. Scenes an engine does not
+    model (`comparators.engine.unsupported`) are left out for it (`comparators.engine.left_out`).
     """
 
     def hard(scene: Scene) -> bool:
@@ -186,6 +190,7 @@ def plan(
                 min(repeats, QUICK_HARD_REPEATS) if hard(scene) else repeats,
             )
             for scene in scenes
+            if not unsupported(ENGINES[name], scene)
             for f in factors(scene)
             for integrator in ENGINES[name].integrators
         ]
@@ -285,10 +290,14 @@ def machine_info() -> dict[str, str]:
 
 
 def run_sweep(
-    specs: list[RunSpec], cache: ResultsCache, executor, progress: bool = True
+    specs: list[RunSpec],
+    cache: ResultsCache,
+    executor,
+    progress: bool = True,
+    left_out: list[str] | None = None,
 ) -> SweepResult:
     """Run every spec not already in `cache`, store each trajectory as it arrives, and
-    assemble the results table."""
+    assemble the results table; `left_out` lines pass through to the result."""
     start = time.perf_counter()
     keys = {
         spec: run_key(spec.scene, spec.engine, spec.integrator, spec.dt, spec.repeats)
@@ -336,6 +345,7 @@ def run_sweep(
         cached=len(specs) - len(todo),
         orders={(s.engine, s.integrator): ENGINES[s.engine].orders[s.integrator] for s in specs},
         outcomes=measured,
+        left_out=list(left_out or []),
     )
 
 

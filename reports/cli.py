@@ -18,7 +18,7 @@ from rich.table import Table
 from cases import CATALOG, InputError, resolve_case, scene_to_toml
 from cases.catalog import CUBE_RAIN_MAX, CUBE_RAIN_PREFIX, CUBE_RAIN_REPRESENTATIVE
 from comparators import ENGINES, get_engine, run
-from comparators.engine import ContractError
+from comparators.engine import ContractError, left_out
 from comparators.parity import ParityError
 from comparators.summary import summarize
 from comparators.trajectory import atomic_path
@@ -45,6 +45,14 @@ def _engines(names: list[str] | None) -> list[str]:
     for name in engines:
         get_engine(name)
     return engines
+
+
+def _print_left_out(console: Console, scenes: list, engines: list[str]) -> list[str]:
+    """Print which engines and runs the command leaves out, and why; return the lines."""
+    lines = left_out(scenes, engines)
+    for line in lines:
+        console.print(f"left out: {line}", markup=False)
+    return lines
 
 
 def _format_metric(value) -> str:
@@ -150,6 +158,7 @@ def _cmd_bench(args, console: Console) -> None:
     scenes = _scenes(args.cases)
     engines = _engines(args.engines)
     plan_bench(scenes, engines, args.dt, args.duration)  # bad dt or duration: before any run
+    _print_left_out(console, scenes, engines)
     start = time.perf_counter()
     with console.status("compiling the reference simulator", spinner="dots"):
         warm_up(engines)
@@ -207,7 +216,7 @@ def _cmd_report(args, console: Console) -> None:
     with console.status("compiling the reference simulator", spinner="dots"):
         warm_up(engines)
     specs = plan(scenes, engines, quick=args.quick)
-    result = run_sweep(specs, cache, executor)
+    result = run_sweep(specs, cache, executor, left_out=_print_left_out(console, scenes, engines))
     # scaling after the sweep: none of the sweep's workers competes for the cores
     table = _measure_scaling(args, engines, console) if args.scaling else None
     command = " ".join(["rigidbench", *sys.argv[1:]])

@@ -1,6 +1,7 @@
 """Engines are plugins found through the `rigidbench.engines` entry points, the built-in ones
 too, and a plugin that fails to load is listed with its reason without stopping the others."""
 
+import dataclasses
 from importlib import metadata
 
 import pytest
@@ -8,6 +9,10 @@ import pytest
 from cases import CATALOG, InputError
 from comparators import Trajectory, run
 from comparators import engine as registry
+from comparators.bench import bench
+from comparators.cache import ResultsCache
+from comparators.engine import left_out
+from comparators.sweep import LocalExecutor, plan, run_sweep
 from reports.cli import main
 
 BUILT_IN = {"mujoco", "pybullet", "reference"}
@@ -100,3 +105,85 @@ def test_the_cli_reports_a_broken_table_as_one_engine_error_line(monkeypatch, ca
     assert main([*args, "--duration", "0.1"]) == 3
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("rigidbench: engine error: engine 'wrong_tables'")
+
+
+class _Faulty:
+    """A plugin engine that raises in `run` ("raises") or models the scene with the wrong mass
+    ("wrong_mass", caught by the t = 0 parity check), and models no contact."""
+
+    name = "faulty"
+    integrators = ("raises", "wrong_mass")
+    default_integrator = "raises"
+    orders = {i: 1 for i in integrators}
+    missing = None
+
+    def unsupported(self, scene):
+        return "contact is not modelled" if scene.has_contact else None
+
+    def run(self, scene, integrator, dt, duration):
+        if integrator == "raises":
+            raise RuntimeError("the plugin broke")
+        good = run(scene, "mujoco", "Euler", dt, duration)
+        bodies = {n: {**b, "mass": 2 * b["mass"]} for n, b in good.meta.bodies.items()}
+        meta = dataclasses.replace(good.meta, engine=self.name, bodies=bodies)
+        return Trajectory(good.table, meta)
+
+
+@pytest.fixture
+def with_faulty(monkeypatch):
+    monkeypatch.setitem(registry.ENGINES, "faulty", _Faulty())
+    return registry.ENGINES["faulty"]
+
+
+def test_a_faulty_plugin_fails_its_runs_in_a_sweep_and_the_others_go_on(with_faulty, tmp_path):
+    scenes = [CATALOG["free_spin_cube"], CATALOG["dropped_cube"]]
+    specs = plan(scenes, ["faulty", "mujoco"], dt_factors=(1.0,), repeats=1)
+    assert {(s.scene.name, s.engine) for s in specs if s.engine == "faulty"} == {
+        ("free_spin_cube", "faulty")
+    }
+    lines = left_out(scenes, ["faulty", "mujoco"])
+    result = run_sweep(specs, ResultsCache(tmp_path), LocalExecutor(1), False, lines)
+    verdicts = result.results.set_index(["engine", "integrator", "case"])["verdict"]
+    assert verdicts["faulty", "raises", "free_spin_cube"] == (
+        "failed: RuntimeError: the plugin broke"
+    )
+    assert verdicts["faulty", "wrong_mass", "free_spin_cube"].startswith(
+        "failed: parity: engine 'faulty' on 'free_spin_cube': cube.mass at t = 0 differs"
+    )
+    assert (verdicts["mujoco"] == "ok").all()
+    assert result.left_out == ["faulty on dropped_cube: contact is not modelled"]
+
+
+def test_a_faulty_plugin_fails_its_rows_in_a_bench_and_the_others_are_timed(with_faulty):
+    table = bench([CATALOG["free_spin_cube"]], ["faulty", "mujoco"], duration=0.1, progress=False)
+    rows = table.set_index(["engine", "integrator"])
+    assert rows.loc[("faulty", "raises"), "verdict"].startswith("failed: RuntimeError")
+    assert rows.loc[("faulty", "wrong_mass"), "verdict"].startswith("failed: parity")
+    assert (rows.loc["mujoco", "steps_per_s"] > 0).all()
+
+
+def test_a_scene_the_engine_does_not_model_is_refused_with_its_reason(with_faulty, capsys):
+    assert main(["run", "dropped_cube", "--engine", "faulty", "--integrator", "raises"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        "rigidbench: error: engine 'faulty' cannot run 'dropped_cube': contact is not modelled"
+    ]
+
+
+def test_an_unsupported_check_that_raises_leaves_the_engine_out_saying_why(with_faulty):
+    def broken(scene):
+        raise KeyError("tags")
+
+    with_faulty.unsupported = broken
+    scene = CATALOG["free_spin_cube"]
+    assert plan([scene], ["faulty"], dt_factors=(1.0,)) == []
+    assert left_out([scene], ["faulty"]) == [
+        "faulty on free_spin_cube: its unsupported() raised KeyError: 'tags'"
+    ]
+
+
+def test_left_out_lists_unavailable_engines_not_selected(monkeypatch):
+    monkeypatch.setitem(
+        registry.ENGINES, "absent", registry.UnloadableEngine("absent", "pip install absent")
+    )
+    assert left_out([CATALOG["free_spin_cube"]], ["mujoco"]) == ["absent: pip install absent"]

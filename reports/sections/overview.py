@@ -35,8 +35,16 @@ def header_section(result: SweepResult, command: str, scaling: bool = False) -> 
         f"and {result.cached} taken from the results cache; executor: "
         f"{escape_markdown(result.executor)}.",
         "",
+        *_left_out_lines(result.left_out),
         texts.contents(scaling),
     ]
+
+
+def _left_out_lines(lines: list[str]) -> list[str]:
+    """The engines and runs the report leaves out and why, as a list (nothing when none)."""
+    if not lines:
+        return []
+    return ["Left out:", "", *(f"- {escape_markdown(line)}" for line in lines), ""]
 
 
 def timing_section(results: pd.DataFrame) -> list[str]:
