@@ -6,8 +6,10 @@ with `setMass` and `setMomentOfInertia` (shapes add none). Spheres and planes ge
 dynamics aspects only when the scene has contact; gravity is the scene's; joint damping is 0 and
 DART's sleeping (world deactivation, on by default) is off. DART steps semi-implicit Euler; the
 "integrator" is the contact solver: "dantzig" (DART's default boxed LCP, with its PGS fallback)
-or "pgs" (projected Gauss-Seidel alone). DART multiplies the two shapes' restitution and takes
-the smaller friction, so every shape gets sqrt(e) and mu. A divergence ends the samples in NaN.
+or "pgs" (projected Gauss-Seidel, with a second PGS as fallback, as DART's own constructor sets
+it up: without one DART zeroes the impulses of every failed solve). DART multiplies the two
+shapes' restitution and takes the smaller friction, so every shape gets sqrt(e) and mu. A
+divergence ends the samples in NaN.
 
 The model, the contact mapping and its measured rebounds, sleeping and the traps:
 docs/engines/dart.md.
@@ -327,7 +329,7 @@ def parity_manifest(scene: Scene, world, solver: dict, sleeping: bool = False) -
             "friction_per_shape": mu,
             "friction_combination": "min of the two shapes' coefficients",
             "max_contacts": int(option.maxNumContacts),
-            "max_contacts_per_pair": int(option.maxNumContactsPerPair) or "unlimited",
+            "max_contacts_per_pair": int(option.getEffectiveMaxNumContactsPerPair()),
             "self_collision": False,
             **CONTACT_CONSTANTS,
         }
@@ -355,8 +357,10 @@ def run_dart(
     with _stderr_captured(messages), timer.stepping():
         raw = step_and_sample(world, joints, sampled)
     manifest = parity_manifest(scene, world, solver, sleeping)
-    report = _solver_report(messages) if scene.has_contact else None
-    meta = timer.meta(package_versions("dartpy"), manifest, bodies, report)
+    report = _solver_report(messages)  # passes DART's other messages on, contact or not
+    meta = timer.meta(
+        package_versions("dartpy"), manifest, bodies, report if scene.has_contact else None
+    )
     return timer.trajectory(sampled, samples_from_raw(raw), meta)
 
 
