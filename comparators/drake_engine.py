@@ -341,21 +341,24 @@ def end_time(model: DrakeModel, n_steps: int, dt: float) -> float:
 
 def step_and_sample(
     model: DrakeModel, steps: np.ndarray, dt: float, end: float
-) -> tuple[np.ndarray, float]:
-    """Advance to `end` in one `AdvanceTo`, recording x, q, v, world omega per body (S, B, 13)
-    at the sampled step indices `steps` from a Simulator monitor (called once after every
-    step, whatever the plant: one AdvanceTo per sample would cost an extra ~0.1 ms each).
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Advance to `end` in one `AdvanceTo`, recording each body's pose (the plant's
+    `EvalBodyPoseInWorld`, its 3 x 4 [R | x]) and spatial velocity in the world (w, v) at the
+    sampled step indices `steps`, from a Simulator monitor (called once after every step,
+    whatever the plant: one AdvanceTo per sample would cost an extra ~0.1 ms each).
 
     A step Drake fails on (it throws) or a non-finite or runaway state at a sample ends the
-    run: the samples from there on are NaN; returns the samples and the time of the first NaN
-    sample (NaN if none).
+    run: the samples from there on are NaN. Returns poses (S, B, 3, 4), spatial velocities
+    (S, B, 6) and the time of the first NaN sample (NaN if none).
     """
     plant, context, simulator, bodies = model.plant, model.context, model.simulator, model.bodies
     pose, velocity = plant.EvalBodyPoseInWorld, plant.EvalBodySpatialVelocityInWorld
-    state = plant.GetPositionsAndVelocities
-    out = np.full((len(steps), len(bodies), 13), np.nan)
+    poses = np.full((len(steps), len(bodies), 3, 4), np.nan)
+    spatial = np.full((len(steps), len(bodies), 6), np.nan)
     sampled = {int(k): s for s, k in enumerate(steps)}
-    done = [0, -1]  # steps recorded; the first step not to count (-1: none)
+    state = plant.GetPositionsAndVelocities
+    # steps done; the sample being recorded (None between samples); the first bad sample
+    done, recording, bad = [0], [None], [None]
     succeeded = EventStatus.Succeeded()
 
     def record(root) -> object:
@@ -363,17 +366,15 @@ def step_and_sample(
         done[0] += 1
         if s is None:
             return succeeded
+        # the raw state, quaternion included: its norm runs away before the pose does
         if not (np.abs(state(context)) < MAX_VALUE).all():  # NaN compares False
-            done[1] = done[0] - 1
+            bad[0] = s
             return EventStatus.ReachedTermination(plant, "diverged")
-        row = out[s]
+        recording[0] = s
         for b, rigid in enumerate(bodies):
-            X = pose(context, rigid)
-            V = velocity(context, rigid)
-            row[b, 0:3] = X.translation()
-            row[b, 3:7] = X.rotation().ToQuaternion().wxyz()
-            row[b, 7:10] = V.translational()
-            row[b, 10:13] = V.rotational()
+            poses[s, b] = pose(context, rigid).GetAsMatrix4()[:3]
+            spatial[s, b] = velocity(context, rigid).get_coeffs()
+        recording[0] = None
         return succeeded
 
     record(simulator.get_context())  # step 0, the initial state
@@ -381,14 +382,58 @@ def step_and_sample(
     try:
         simulator.AdvanceTo(end)
     except RuntimeError:  # Drake's failed step (NaN, solver failure): a result
-        done[1] = done[0]
+        if recording[0] is not None:  # failed reading a sample
+            bad[0] = recording[0]
+        else:  # failed taking step done[0]
+            bad[0] = int(np.searchsorted(steps, done[0]))
     finally:
         simulator.clear_monitor()
-    if done[1] < 0:
-        return out, math.nan
-    first = int(np.searchsorted(steps, done[1]))
-    out[first:] = np.nan
-    return out, float(steps[min(first, len(steps) - 1)] * dt)
+    if bad[0] is None:
+        return poses, spatial, math.nan
+    poses[bad[0] :] = np.nan
+    spatial[bad[0] :] = np.nan
+    return poses, spatial, float(steps[min(bad[0], len(steps) - 1)] * dt)
+
+
+def quats_from_matrices(r: np.ndarray) -> np.ndarray:
+    """Unit quaternions (w, x, y, z), w >= 0, of rotation matrices (..., 3, 3), by Shepperd's
+    method (the branch of the largest of trace, r00, r11, r22); NaN in, NaN out."""
+    m = r.reshape(-1, 3, 3)
+    q = np.full((len(m), 4), np.nan)
+    diag = np.stack([m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2], m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]])
+    finite = np.isfinite(diag).all(axis=0)
+    branch = np.where(finite, np.argmax(np.where(finite, diag, 0.0), axis=0), -1)
+    d = m[:, [2, 0, 1], [1, 2, 0]] - m[:, [1, 2, 0], [2, 0, 1]]  # r21-r12, r02-r20, r10-r01
+    for k in range(4):
+        rows = branch == k
+        if not rows.any():
+            continue
+        a = m[rows]
+        if k == 0:
+            s = 2.0 * np.sqrt(1.0 + diag[0, rows])
+            q[rows] = np.column_stack([0.25 * s, *(d[rows] / s[:, None]).T])
+            continue
+        i, j, n = k - 1, k % 3, (k + 1) % 3  # the axis of the branch and the two after it
+        s = 2.0 * np.sqrt(1.0 + a[:, i, i] - a[:, j, j] - a[:, n, n])
+        out = np.empty((len(a), 4))
+        out[:, 0] = d[rows, i] / s
+        out[:, 1 + i] = 0.25 * s
+        out[:, 1 + j] = (a[:, i, j] + a[:, j, i]) / s
+        out[:, 1 + n] = (a[:, i, n] + a[:, n, i]) / s
+        q[rows] = out
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q[q[:, 0] < 0] *= -1.0
+    return q.reshape(*r.shape[:-2], 4)
+
+
+def samples_from_records(poses: np.ndarray, spatial: np.ndarray) -> np.ndarray:
+    """(S, B, 13) rows x, q, v, world omega from `step_and_sample`'s poses and velocities."""
+    out = np.empty((*poses.shape[:2], 13))
+    out[..., 0:3] = poses[..., 3]
+    out[..., 3:7] = quats_from_matrices(poses[..., :3])
+    out[..., 7:10] = spatial[..., 3:]
+    out[..., 10:13] = spatial[..., :3]
+    return out
 
 
 def steps_taken(model: DrakeModel) -> int:
@@ -473,7 +518,8 @@ class DrakeEngine:
         steps = sample_steps(timer.n_steps, timer.stride)
         end = end_time(model, timer.n_steps, dt)
         with timer.stepping():
-            samples, diverged_at = step_and_sample(model, steps, dt, end)
+            poses, spatial, diverged_at = step_and_sample(model, steps, dt, end)
+        samples = samples_from_records(poses, spatial)
         solver = {"steps_taken": float(steps_taken(model)), "diverged_at_s": diverged_at}
         meta = timer.meta(package_versions("drake"), manifest, bodies, solver)
         return timer.trajectory(steps, samples, meta)
