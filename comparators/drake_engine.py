@@ -84,9 +84,13 @@ E_FLOOR = 0.05
 # moving apart), m/s: a rounding-level speed would give an unbounded dissipation.
 FALLBACK_IMPACT_SPEED = 1.0
 MIN_IMPACT_SPEED = 0.01
-# Stribeck stiction tolerance (m/s) of TAMSI and the continuous plant (SAP regularises friction
-# its own way and ignores it): MultibodyPlantConfig's default.
-STICTION_TOLERANCE = 1e-4
+# Stribeck stiction tolerance (m/s), the slip speed at which friction reaches mu N, for TAMSI
+# and the continuous plant (SAP regularises friction its own way and ignores it). TAMSI treats
+# friction implicitly and keeps MultibodyPlantConfig's default. An explicit step resolves the
+# Stribeck slope mu N / v_s only if mu |g| dt / v_s stays below ~2: at the default it is 50 at
+# dt 0.001 and a stopped body chatters for ever, so the continuous plant gets 1e-2 m/s
+# (0.5 at dt 0.001); a cube held on a slope then creeps at a few mm/s (docs/engines/drake.md).
+STICTION_TOLERANCE = {"discrete": 1e-4, "continuous": 1e-2}
 # A state component beyond this magnitude is a divergence (m, m/s, rad/s), as MuJoCo's mjMAXVAL.
 MAX_VALUE = 1e10
 
@@ -229,7 +233,7 @@ def plant_config(integrator: str, dt: float) -> MultibodyPlantConfig:
         discrete_contact_approximation=DISCRETE[integrator] if discrete else "",
         contact_model="point",
         penetration_allowance=0.001,  # unused: every geometry carries its own stiffness
-        stiction_tolerance=STICTION_TOLERANCE,
+        stiction_tolerance=STICTION_TOLERANCE["discrete" if discrete else "continuous"],
         sap_near_rigid_threshold=1.0,
         adjacent_bodies_collision_filters=True,
         use_sampled_output_ports=False,
@@ -490,6 +494,9 @@ def parity_manifest(model: DrakeModel, scene: Scene, integrator: str) -> dict[st
                 "stiffness_combination": "in series (k / 2 per pair of equal geometries)",
                 "dissipation_combination": "stiffness-weighted mean (all equal)",
                 "stiction_tolerance": config.stiction_tolerance,
+                "friction_regularisation": "SAP's own (stiction tolerance unused)"
+                if integrator == "sap"
+                else "Stribeck, stiction tolerance",
                 "penetration_allowance": "unused (stiffness per geometry)",
             }
         )
