@@ -307,7 +307,7 @@ def test_quaternions_from_pose_matrices_match_rigidmath():
 def test_continuous_plant_comes_to_rest_at_a_fine_step(integrator):
     """dropped_cube at dt 0.001: with the continuous plant's stiction tolerance the explicit
     step resolves the Stribeck slope and the cube stops (at MultibodyPlantConfig's default,
-    1e-4 m/s, it chattered at up to 9 mm/s for ever)."""
+    1e-4 m/s, it chattered at up to 5 mm/s for ever)."""
     scene = CATALOG["dropped_cube"]
     traj = run(scene, "drake", integrator, dt=0.001)
     assert traj.meta.settings["stiction_tolerance"] == de.STICTION_TOLERANCE["continuous"]
