@@ -36,7 +36,7 @@ from rich.progress import (
 from cases.errors import InputError
 from cases.exact import exact_trajectory_available
 from cases.scene import Scene
-from comparators.cache import ResultsCache, code_version, run_key
+from comparators.cache import RESULT_PACKAGES, ResultsCache, code_version, run_key
 from comparators.engine import ENGINES, unsupported
 from comparators.metrics import pose_errors_between
 from comparators.outcomes import OUTCOME_COLUMNS, outcomes
@@ -285,7 +285,7 @@ def machine_info() -> dict[str, str]:
                 cpu = line.split(":", 1)[1].strip()
                 break
     info = {"cpu": cpu, "cores": str(os.cpu_count()), "os": platform.platform()}
-    info.update(package_versions("numba", "scipy", "pandas", "mujoco", "pybullet"))
+    info.update(package_versions("numba", "scipy", "pandas", *RESULT_PACKAGES))
     return info
 
 

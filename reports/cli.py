@@ -14,6 +14,7 @@ from pathlib import Path
 
 from rich.console import Console
 from rich.table import Table
+from rich.text import Text
 
 from cases import CATALOG, InputError, resolve_case, scene_to_toml
 from cases.catalog import CUBE_RAIN_MAX, CUBE_RAIN_PREFIX, CUBE_RAIN_REPRESENTATIVE
@@ -84,7 +85,8 @@ def _throughput_console_table(table, title: str) -> Table:
         if not math.isnan(row.steps_per_s):
             rate += f" [{_format_rate(row.steps_per_s_min)}, {_format_rate(row.steps_per_s_max)}]"
         ratio = _format_rate(row.ratio_vs_mujoco_euler)
-        shown.add_row(row.case, row.engine, row.integrator, f"{row.dt:g}", rate, ratio, row.verdict)
+        cells = (row.case, row.engine, row.integrator, f"{row.dt:g}", rate, ratio, row.verdict)
+        shown.add_row(*map(Text, cells))
     return shown
 
 
@@ -110,7 +112,8 @@ def _cmd_engines(args, console: Console) -> None:
         table.add_column(col)
     for engine in ENGINES.values():
         status = f"unavailable: {engine.missing}" if engine.missing else "ok"
-        table.add_row(engine.name, ", ".join(engine.integrators), engine.default_integrator, status)
+        cells = (engine.name, ", ".join(engine.integrators), engine.default_integrator, status)
+        table.add_row(*map(Text, cells))  # Text: "[drake]" in a status is no markup
     console.print(table)
 
 

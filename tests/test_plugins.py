@@ -2,6 +2,9 @@
 too, and a plugin that fails to load is listed with its reason without stopping the others."""
 
 import dataclasses
+import os
+import subprocess
+import sys
 from importlib import metadata
 
 import pytest
@@ -15,7 +18,7 @@ from comparators.engine import left_out
 from comparators.sweep import LocalExecutor, plan, run_sweep
 from reports.cli import main
 
-BUILT_IN = {"mujoco", "pybullet", "reference"}
+BUILT_IN = {"dart", "drake", "mujoco", "pybullet", "reference"}
 
 
 def test_built_in_engines_are_registered_through_entry_points():
@@ -187,3 +190,43 @@ def test_left_out_lists_unavailable_engines_not_selected(monkeypatch):
         registry.ENGINES, "absent", registry.UnloadableEngine("absent", "pip install absent")
     )
     assert left_out([CATALOG["free_spin_cube"]], ["mujoco"]) == ["absent: pip install absent"]
+
+
+# A Python that cannot import pydrake or dartpy, as where the extras are not installed.
+WITHOUT_EXTRAS = """
+import sys
+class Absent:
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in ("pydrake", "dartpy"):
+            raise ImportError(f"No module named {name!r}")
+sys.meta_path.insert(0, Absent())
+from reports.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_an_engine_whose_package_is_absent_says_how_to_install_it(tmp_path):
+    def rigidbench(*args):
+        return subprocess.run(
+            [sys.executable, "-c", WITHOUT_EXTRAS, *args],
+            capture_output=True,
+            text=True,
+            cwd=tmp_path,
+            env={**os.environ, "COLUMNS": "300"},
+        )
+
+    listed = rigidbench("engines")
+    assert listed.returncode == 0, listed.stderr
+    for engine, extra in (("drake", "drake"), ("dart", "dart")):
+        line = next(x for x in listed.stdout.splitlines() if f" {engine} " in x)
+        assert "unavailable" in line and f"pip install 'rigidbench[{extra}]'" in line
+    refused = rigidbench("run", "free_spin_cube", "--engine", "drake")
+    assert refused.returncode == 2
+    assert refused.stderr.startswith("rigidbench: error: engine 'drake' is unavailable: pydrake")
+    assert len(refused.stderr.strip().splitlines()) == 1
+    bench = rigidbench(
+        *("bench", "--cases", "free_spin_cube", "--engines", "mujoco"), "--duration", "0.05"
+    )
+    assert bench.returncode == 0, bench.stderr
+    left = [x for x in bench.stdout.splitlines() if x.startswith("left out:")]
+    assert [x.split(":")[1].strip() for x in left] == ["dart", "drake"]
