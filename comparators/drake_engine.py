@@ -148,16 +148,14 @@ def hunt_crossley_alpha(restitution: float) -> float:
 
 
 def _first_contact_speed(clearance: float, v_n: float, g_n: float) -> float:
-    """Normal approach speed when a point at `clearance` along a normal, moving at v_n with
-    acceleration g_n along it, first reaches 0; 0 when it never does."""
+    """Normal approach speed when a point at `clearance` along a plane's normal, moving at v_n
+    with acceleration g_n along it, first reaches the plane; 0 when it never does."""
     if clearance <= 0.0:
         return max(0.0, -v_n)
-    if g_n == 0.0:
-        return max(0.0, -v_n)
-    disc = v_n * v_n - 2.0 * g_n * clearance
-    if disc < 0.0:
+    if v_n >= 0.0 and g_n >= 0.0:  # moving away and pushed away
         return 0.0
-    return math.sqrt(disc)  # speed when the gap closes, whichever root comes first
+    disc = v_n * v_n - 2.0 * g_n * clearance  # c + v_n t + g_n t^2 / 2 = 0 has a root t > 0
+    return math.sqrt(disc) if disc >= 0.0 else 0.0
 
 
 def impact_speed(scene: Scene) -> float:
@@ -290,7 +288,7 @@ def build(scene: Scene, integrator: str, dt: float) -> DrakeModel:
             for k, plane in enumerate(scene.planes):
                 pose = HalfSpace.MakePose(plane.unit_normal, np.asarray(plane.point, dtype=float))
                 plant.RegisterCollisionGeometry(
-                    plant.world_body(), pose, HalfSpace(), f"plane{k}", _properties(material)
+                    plant.world_body(), pose, HalfSpace(), f"plane{k}", props
                 )
         plant.Finalize()
         system = builder.Build() if contact else plant

@@ -203,6 +203,15 @@ def test_hunt_crossley_mapping_inverts():
     assert de.hunt_crossley_alpha(0.0) == de.hunt_crossley_alpha(de.E_FLOOR)
     # small d v: the classic first-order relation e = 1 - (2/3) d v
     assert de.hunt_crossley_restitution(1e-3) == pytest.approx(1 - 2e-3 / 3, abs=1e-6)
+    # the impact speed: falling 1 m from rest, thrown down, thrown up and falling back, moving
+    # away without gravity, never arriving against gravity pointing away from the plane
+    assert de._first_contact_speed(1.0, 0.0, -10.0) == pytest.approx(math.sqrt(20.0))
+    assert de._first_contact_speed(1.0, -3.0, 0.0) == 3.0
+    assert de._first_contact_speed(1.0, 2.0, -10.0) == pytest.approx(math.sqrt(24.0))
+    assert de._first_contact_speed(1.0, 2.0, 0.0) == 0.0
+    assert de._first_contact_speed(1.0, 2.0, 10.0) == 0.0
+    assert de._first_contact_speed(1.0, -2.0, 10.0) == 0.0  # turned back before arriving
+    assert de.impact_speed(CATALOG["resting_cube"]) == de.FALLBACK_IMPACT_SPEED
     bounce = CATALOG["bounce"]
     m = de.contact_material(bounce)
     assert m.impact_speed == pytest.approx(math.sqrt(2 * 10.0 * 1.0), rel=1e-12)  # 1 m drop
