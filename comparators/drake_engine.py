@@ -72,9 +72,9 @@ INTEGRATORS = (*DISCRETE, *CONTINUOUS)
 ORDERS = {"sap": 1, "tamsi": 1, "semi_explicit_euler": 1, "rk2": 2, "rk3": 3}
 
 # Contact natural frequency of the heaviest body on one point contact, rad/s: the combined
-# stiffness is m_max OMEGA^2, i.e. Drake's own default penetration allowance (1 mm under the
-# heaviest body's weight at |g| = 10), fixed whatever dt so that the model does not change with
-# the step; four contacts (a face) sink 0.25 mm.
+# stiffness is m_max OMEGA^2, 1 mm under that body's weight at |g| = 10 (the scale of Drake's
+# default penetration allowance), fixed whatever dt so that the model does not change with the
+# step; four contacts (a face) sink 0.25 mm.
 CONTACT_OMEGA = 100.0
 # e = 0 has no finite Hunt-Crossley dissipation (e ~ 1 / (d v) for large d v): it is mapped as
 # this e, the rebound a dissipation of about 1 / E_FLOOR times the impact speed leaves.
