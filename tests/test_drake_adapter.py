@@ -5,6 +5,9 @@ Adapter-specific checks only; the cross-engine gates live in tests/test_engines.
 
 import dataclasses
 import math
+import subprocess
+import sys
+import textwrap
 
 import numpy as np
 import pytest
@@ -323,3 +326,17 @@ def test_continuous_plant_comes_to_rest_at_a_fine_step(integrator):
     r = rest(traj, scene, "cube")
     assert r["at_rest"], r
     assert abs(r["com_height"] - scene.expected.rest_com_height) < REST_HEIGHT_TOL, r
+
+
+def test_module_imports_without_pydrake():
+    """With pydrake absent the module still imports and the engine says how to install it."""
+    code = textwrap.dedent(
+        """
+        import sys
+        sys.modules["pydrake"] = None  # any import of pydrake now fails
+        from comparators.drake_engine import DrakeEngine
+        print(DrakeEngine().missing)
+        """
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert "pip install 'rigidbench[drake]'" in out.stdout
