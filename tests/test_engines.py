@@ -29,8 +29,13 @@ RUNS = [
 # reference's rk4 is classic RK4 on the quaternion's components, a 4th-order polynomial of
 # the exponential, not a rotation: its free-spin error is that truncation, predicted in closed
 # form and gated in tests/test_rigid_integrators.py.
+# Drake's integrators advance the quaternion's components like any other state (renormalised
+# only when a pose is evaluated): their free-spin error is that truncation, gated against its
+# closed form in tests/test_drake_adapter.py.
 FREE_SPIN_ATOL = 1e-9
-POLYNOMIAL_ROTATION = {("reference", "rk4")}
+POLYNOMIAL_ROTATION = {("reference", "rk4")} | {
+    ("drake", i) for i in ("sap", "tamsi", "semi_explicit_euler", "rk2", "rk3")
+}
 
 
 def _errors(traj, scene):
@@ -127,9 +132,18 @@ def test_tumbling_box_errors_shrink_at_the_integrators_order(engine, integrator)
 REST_HEIGHT_TOL = 0.005
 
 
+# Drake's continuous plant with fixed explicit steps cannot hold the compliant contact's
+# stiffness at dt 0.01 (the cube diverges or jitters: docs/engines/drake.md); it rests at 0.001.
+# A recorded result, kept strict: the day these runs come to rest, the test says so.
+EXPLICIT_STIFF_CONTACT = {("drake", i, 0.01) for i in ("semi_explicit_euler", "rk2", "rk3")}
+
+
 @pytest.mark.parametrize("dt", [0.01, 0.001])
 @pytest.mark.parametrize(("engine", "integrator"), RUNS)
-def test_dropped_cube_rests_on_a_face(engine, integrator, dt):
+def test_dropped_cube_rests_on_a_face(engine, integrator, dt, request):
+    if (engine, integrator, dt) in EXPLICIT_STIFF_CONTACT:
+        reason = "explicit steps on stiff compliant contact at this dt (docs/engines/drake.md)"
+        request.applymarker(pytest.mark.xfail(strict=True, reason=reason))
     scene = CATALOG["dropped_cube"]
     r = rest(run(scene, engine, integrator, dt=dt), scene, "cube")
     assert r["at_rest"], f"dropped_cube/{engine}/{integrator}/dt={dt}: not at rest: {r}"
