@@ -34,7 +34,7 @@ from reference_sim.contact.grid import grid_pairs
 from reference_sim.contact.settings import GRID_MIN_BODIES
 from reference_sim.contact.step import after_drift, before_drift
 from reference_sim.exact_rotation import exact_rotation
-from reference_sim.jit import compiled, inlined_kernel, kernel, shared_kernel
+from reference_sim.jit import compiled, inlined_kernel, kernel
 from reference_sim.model import Model
 from reference_sim.quaternion import qexp, qmatrix, qmul, qnormalize
 from reference_sim.vec3 import dot, mat, mat_t_vec, mat_vec, row, vec
@@ -112,7 +112,7 @@ def _store_quat(out, b, q):
     out[b, 0], out[b, 1], out[b, 2], out[b, 3] = q
 
 
-@shared_kernel
+@inlined_kernel
 def _drift(model, integrator, x, q, v, L, dt):
     """The integrator's contact-free update of every body, in place (inlined: `jit`)."""
     g = model.gravity
