@@ -20,8 +20,8 @@ kernel = njit(cache=True, _nrt=False, forceinline=False)
 # `Model` (14) or `ContactBuffers` (40) argument by value, which in a step's dozen such calls
 # costs more than the work; also for kernels of a single caller, as numba optimises each
 # compiled function with all it calls again. numba inlines them in its own IR, before typing:
-# each inlined copy is typed, lowered and optimised again (slow in numba's Python passes), so
-# only small kernels or those of a single caller are inlined this way.
+# each inlined copy is typed, lowered and optimised again (slow in numba's Python passes): the
+# largest kernels of several callers are `shared_kernel`s instead.
 inlined_kernel = njit(cache=True, _nrt=False, inline="always", forceinline=False)
 # Large kernels of several callers (or called from a compile stage apart from their caller):
 # compiled once per signature, cached, and inlined by LLVM into each caller (the `alwaysinline`
