@@ -8,7 +8,6 @@ import numpy as np
 from reference_sim.contact.buffers import contact_buffers, grown
 from reference_sim.contact.candidates import find_candidates_into
 from reference_sim.contact.frames import frames_into
-from reference_sim.contact.grid import grid_pairs
 from reference_sim.contact.step import after_drift, before_drift
 from reference_sim.model import (
     Model,
@@ -18,7 +17,7 @@ from reference_sim.model import (
     rigid_initial_state,
     seed_initial_state,
 )
-from reference_sim.rigid import INTEGRATOR_CODES, run_rigid_fields
+from reference_sim.rigid import INTEGRATOR_CODES, _free_steps, _grid_pairs, run_rigid_fields
 from reference_sim.seed import run_seed
 
 INTEGRATORS = ("seed", *INTEGRATOR_CODES)
@@ -85,8 +84,9 @@ def simulate(
 
 # Parts of the simulator that compile independently; the stages of one group run in order
 # (the later ones load the earlier ones' code from numba's cache), the groups in parallel
-# processes. The contact and rigid stages together take the longest (docs/contact-solver.md).
-COMPILE_GROUPS = (("seed",), ("contact", "rigid"))
+# processes. "rigid" needs the code of "free" and "contact": "free" compiles in the other
+# process while "contact" does, the longest stage (docs/contact-solver.md, Compiled code).
+COMPILE_GROUPS = (("free", "seed"), ("contact", "rigid"))
 COMPILE_STAGES = tuple(stage for group in COMPILE_GROUPS for stage in group)
 
 
@@ -99,8 +99,10 @@ def compile_stages(stages) -> None:
 def compile_stage(stage: str) -> None:
     """Compile (or load from numba's cache) one part of the simulator on a tiny scene.
 
-    "contact" and "seed" share nothing and can compile in parallel processes; "rigid" then
-    loads the contact code from the cache and compiles only the integrators around it.
+    "contact" compiles the contact impulses (`before_drift`, `after_drift` and what they
+    call), "free" the rigid integrators' contact-free steps and the contact buffers, "seed"
+    the seed integrator: they share nothing and can compile in parallel processes. "rigid"
+    then loads their code from the cache and compiles only the step loops around it.
     """
     corners = np.array([[x, y, z, 1.0] for x in (0, 1) for y in (0, 1) for z in (0.2, 1.2)])
     model = build_model(
@@ -111,12 +113,19 @@ def compile_stage(stage: str) -> None:
     dt = 0.01
     if stage == "contact":
         x, q, v, L = (a.copy() for a in state)
-        buf = grown(contact_buffers(1, 8, 4), 16, 4)
+        # the buffers and the candidates by the Python functions: compiling them is "free"'s
+        # part (the candidates compile inlined in the step, calling the kernels compiled here)
+        buf = contact_buffers.py_func(1, 16, 4)
         frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
-        nc = find_candidates_into(model, x, v, dt, (0.0, 0.0, 0.0), buf)
-        grid_pairs(model, x, buf.reach)
+        nc = find_candidates_into.py_func(model, x, v, dt, (0.0, 0.0, 0.0), buf)
         before_drift(model, x, v, L, nc, dt, (0.0, 0.0, -0.05), 0.2, buf)
         after_drift(model, x, q, v, L, nc, dt, buf)
+    elif stage == "free":
+        x, q, v, L = (a.copy() for a in state)
+        out, steps = np.empty((2, 1, 13)), np.empty(2, dtype=np.int64)
+        _free_steps(model, INTEGRATOR_CODES["splitting"], x, q, v, L, dt, 1, 1, out, steps)
+        buf = grown(contact_buffers(1, 8, 4), 16, 4)
+        _grid_pairs(model, INTEGRATOR_CODES["splitting"], x, q, v, L, dt, buf)
     elif stage == "seed":
         simulate(model, seed_initial_state(model, corners[:, :3], velocity, omega), "seed", dt, 2)
     elif stage == "rigid":

@@ -1,6 +1,8 @@
 """A step's contact impulses, split around the drift (the integrator's position update):
 speculative contacts before it (`before_drift`), bounce and rest after it (`after_drift`)."""
 
+import numpy as np
+
 from reference_sim.contact.buffers import (
     COUNT_KEPT_ROWS,
     COUNT_POST_WARM,
@@ -29,7 +31,7 @@ from reference_sim.contact.settings import (
     solver_tolerance,
 )
 from reference_sim.contact.warm_start import remember, warm_start
-from reference_sim.jit import inlined_kernel
+from reference_sim.jit import inlined_kernel, shared_kernel
 
 
 @inlined_kernel
@@ -47,7 +49,7 @@ def _bounces(model, v, nc, dt, bounce_threshold, buf):
             buf.bounce[k] = -model.restitution * vn
 
 
-@inlined_kernel
+@shared_kernel
 def solve(model, x, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm, slot):
     """Projected Gauss-Seidel on the normal and friction impulses of the active contacts
     (`assemble`), in place, towards `buf.target` normal speeds, to `solver_tolerance(dt)`.
@@ -83,7 +85,7 @@ def solve(model, x, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm, slot):
     buf.solver[STAT_UNCONVERGED] += not converged
 
 
-@inlined_kernel
+@shared_kernel
 def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
     """Speculative impulses on the first nc candidates of `buf`, on the velocity the drift will
     use: v + drift_gravity (m/s), the part of this step's gravity the integrator adds during the
@@ -108,7 +110,7 @@ def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
         gap = buf.gap[k]
         buf.target[k] = -gap / dt if gap >= 0.0 else -BAUMGARTE * gap / dt
     n_warm = buf.counts[COUNT_PRE_WARM]
-    solve(model, x, v, L, nc, dt, buf, buf.pre_keys, buf.pre_lam, n_warm, PRE_DRIFT)
+    solve(model, x, v, L, nc, dt, buf, buf.pre_keys, buf.pre_lam, n_warm, np.int64(PRE_DRIFT))
     buf.counts[COUNT_PRE_WARM] = remember(nc, buf, buf.pre_keys, buf.pre_lam)
     for k in range(nc):
         buf.acting[k] = buf.lam[k, 0] > 0.0 or buf.bounce[k] > 0.0
@@ -133,7 +135,7 @@ def _pushes_nothing(model, nc, buf, v):
     return True
 
 
-@inlined_kernel
+@shared_kernel
 def after_drift(model, x, q, v, L, nc, dt, buf):
     """Impulses after the drift on the contacts that pushed before it or bounce
     (`buf.acting`) or touch now (gap below TOUCH_TOLERANCE): the bounce targets of
@@ -156,5 +158,5 @@ def after_drift(model, x, q, v, L, nc, dt, buf):
         buf.solver[STAT_SOLVES] += 1
         return
     n_warm = buf.counts[COUNT_POST_WARM]
-    solve(model, x, v, L, nc, dt, buf, buf.post_keys, buf.post_lam, n_warm, POST_DRIFT)
+    solve(model, x, v, L, nc, dt, buf, buf.post_keys, buf.post_lam, n_warm, np.int64(POST_DRIFT))
     buf.counts[COUNT_POST_WARM] = remember(nc, buf, buf.post_keys, buf.post_lam)
