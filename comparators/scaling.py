@@ -53,6 +53,11 @@ WARM_UP_STEPS = 1  # enough to load an engine's compiled code and libraries befo
 # median: other processes only ever add time, and a burst of load during the repeats of one N
 # can move its median by up to 10x (docs/measurement.md), enough to end a plateau.
 PLATEAU_FACTOR = 2.0
+# An engine whose run at some N took longer than this, model building included (s), is not run
+# at larger N in that window: building Drake's geometry grows faster than N (about 4 s for
+# cube_rain_100, minutes beyond), and one engine must not hold the measurement for the others.
+# Its rows at larger N say so; 30 s is 30 times the slowest run of the other engines at N = 1000.
+SCALING_RUN_LIMIT_S = 30.0
 
 SCALING_COLUMNS = [
     "case",
@@ -106,6 +111,7 @@ def measure_scaling(
     repeats: int = SCALING_REPEATS,
     all_integrators: bool = False,
     progress: Callable[[str], None] | None = None,
+    run_limit_s: float = SCALING_RUN_LIMIT_S,
 ) -> pd.DataFrame:
     """Cost per step of `cube_rain_N` for N in `counts`: one row per window, N, engine and
     integrator (`SCALING_COLUMNS`), in that order of nesting.
@@ -115,7 +121,8 @@ def measure_scaling(
     dt. A run is repeated up to `repeats` times while one run takes under LONG_RUN_S
     (longer runs average scheduler noise within themselves); each repeat runs every engine once,
     so machine load falls on all of them alike. The verdict is that of the first repeat's
-    trajectory. `progress` is called with a label before every run.
+    trajectory. `progress` is called with a label before every run. A pair whose run took over
+    `run_limit_s` (setup and stepping) is not run at larger N in that window: its rows say so.
     """
     engines = [n for n, e in ENGINES.items() if not e.missing] if engines is None else engines
     smallest = cube_rain(min(counts))
@@ -126,8 +133,18 @@ def measure_scaling(
         _attempt_window(smallest, engine, integrator, WARM_UP_STEPS)
     rows = []
     for steps in windows:
-        for n in counts:
-            rows += _measure_count(cube_rain(n), pairs, steps, repeats, report)
+        over: dict[tuple, str] = {}  # pairs past the run limit: why they are not run
+        for n in sorted(counts):
+            scene = cube_rain(n)
+            timed = [p for p in pairs if p not in over]
+            measured = _measure_count(scene, timed, steps, repeats, report)
+            by_pair = {(r["engine"], r["integrator"]): r for r in measured}
+            for pair in pairs:
+                row = by_pair.get(pair) or _scaling_row(scene, pair, steps, [], [], over[pair])
+                rows.append(row)
+                took = np.nan_to_num(row["setup_s"]) + np.nan_to_num(row["wall_max_s"])
+                if pair not in over and took > run_limit_s:
+                    over[pair] = f"not run: at N = {n} a run took {took:.3g} s (> {run_limit_s:g})"
     return pd.DataFrame(rows, columns=SCALING_COLUMNS)
 
 

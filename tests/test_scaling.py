@@ -173,3 +173,13 @@ def test_plateau_ends_where_cost_per_body_doubles():
     assert ends.loc["broken", ["flat_up_to", "ends_at"]].tolist() == [10, 1000]
     assert ends.loc["dead"].drop(["integrator", "steps"]).isna().all()
     assert plateau_ends(table, factor=1.5).loc[1, "ends_at"] == 100  # quadratic: 2x at 100
+
+
+def test_an_engine_over_the_run_limit_is_not_run_at_larger_n():
+    table = measure_scaling(COUNTS, engines=["mujoco"], windows=(STEPS,), repeats=1, run_limit_s=0)
+    first, *rest = table.sort_values("n_bodies").itertuples()
+    assert first.verdict == "ok" and first.repeats == 1
+    assert [row.verdict.split(" a run")[0] for row in rest] == [
+        f"not run: at N = {first.n_bodies}"
+    ] * len(rest)
+    assert all(row.repeats == 0 and math.isnan(row.wall_s) for row in rest)
