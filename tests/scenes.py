@@ -1,8 +1,13 @@
 """Scenes shared by several test files (not catalog cases: they exist to check one thing)."""
 
+import math
+
+import numpy as np
+
 from cases import Body, Contact, Scene
 from cases.builders import seed_cube_particles
 from reference_sim.model import rigid_initial_state
+from rigidmath.quaternion import quat_to_matrix
 
 
 def initial_state(model, scene: Scene):
@@ -38,3 +43,25 @@ def head_on(restitution: float, contact: bool = True) -> Scene:
             ),
         ),
     )
+
+
+def rotated(rows, rotvec) -> tuple:
+    """Particle rows (x, y, z, m) rotated about the origin by the rotation vector `rotvec`."""
+    angle = np.linalg.norm(rotvec)
+    q = np.concatenate([[math.cos(angle / 2)], np.sin(angle / 2) * np.asarray(rotvec) / angle])
+    r = quat_to_matrix(q)
+    return tuple((*(r @ np.asarray(p[:3])).tolist(), p[3]) for p in rows)
+
+
+# An asymmetric tilted cluster of unequal masses: a full, non-diagonal inertia tensor, so that a
+# frame mix-up in an adapter (body- against world-frame omega, principal axes) shows.
+TILTED_CLUSTER = Body(
+    name="cluster",
+    particle_radius=0.1,
+    particles=rotated(
+        ((0.0, 0.0, 0.0, 1.0), (1.0, 0.2, 0.0, 2.0), (0.1, 1.5, 0.3, 0.5), (0.4, 0.3, 2.0, 1.5)),
+        (-0.4, 0.9, 0.2),
+    ),
+    velocity=(0.3, -0.2, 0.1),
+    angular_velocity=(1.0, -2.0, 0.5),
+)

@@ -12,7 +12,7 @@ import pytest
 
 pytest.importorskip("dartpy")
 
-from scenes import head_on  # noqa: E402
+from scenes import TILTED_CLUSTER, head_on  # noqa: E402
 
 import comparators.dart_engine as de  # noqa: E402
 from cases import Body, Contact, Scene  # noqa: E402
@@ -64,27 +64,6 @@ MOMENTUM_ATOL = 1e-12  # kg m/s
 # threshold) over 2 s at dt 0.001: with sleeping off it covers v t (measured to 1e-13 m); with
 # DART's default it is frozen after 0.5 s (measured 2.5e-4 m of the 1e-3 m).
 CREEP_ATOL = 1e-9  # m
-
-
-def _rotated(rows, rotvec):
-    """Particle rows rotated about the origin by the rotation vector `rotvec`."""
-    angle = np.linalg.norm(rotvec)
-    q = np.concatenate([[math.cos(angle / 2)], np.sin(angle / 2) * np.asarray(rotvec) / angle])
-    r = quat_to_matrix(q)
-    return tuple((*(r @ np.asarray(p[:3])), p[3]) for p in rows)
-
-
-# An asymmetric tilted cluster of unequal masses: a full, non-diagonal inertia tensor.
-TILTED_CLUSTER = Body(
-    name="cluster",
-    particle_radius=0.1,
-    particles=_rotated(
-        ((0.0, 0.0, 0.0, 1.0), (1.0, 0.2, 0.0, 2.0), (0.1, 1.5, 0.3, 0.5), (0.4, 0.3, 2.0, 1.5)),
-        (-0.4, 0.9, 0.2),
-    ),
-    velocity=(0.3, -0.2, 0.1),
-    angular_velocity=(1.0, -2.0, 0.5),
-)
 
 
 def _free_scene(body, dt=0.001, duration=0.5, gravity=(0.0, 0.0, 0.0)) -> Scene:

@@ -14,7 +14,7 @@ import pytest
 
 pytest.importorskip("pydrake", reason="drake is not installed: the Drake adapter cannot run")
 
-from scenes import head_on  # noqa: E402
+from scenes import TILTED_CLUSTER, head_on  # noqa: E402
 
 from cases import CATALOG, Body, Scene  # noqa: E402
 from cases.exact import exact_states  # noqa: E402
@@ -82,40 +82,22 @@ def _free_scene(body: Body, gravity=(0.0, 0.0, 0.0), duration=2.0, dt=0.001) -> 
     )
 
 
-def _rotated(rows, rotvec):
-    """Particle rows rotated about the origin by the rotation vector `rotvec`."""
-    angle = np.linalg.norm(rotvec)
-    q = np.concatenate([[math.cos(angle / 2)], np.sin(angle / 2) * np.asarray(rotvec) / angle])
-    r = quat_to_matrix(q)
-    return tuple((*(r @ np.asarray(p[:3])).tolist(), p[3]) for p in rows)
-
-
-# An asymmetric tilted cluster of unequal masses: a full, non-diagonal inertia tensor.
-TILTED = Body(
-    name="cluster",
-    particle_radius=0.1,
-    particles=_rotated(
-        ((0.0, 0.0, 0.0, 1.0), (1.0, 0.2, 0.0, 2.0), (0.1, 1.5, 0.3, 0.5), (0.4, 0.3, 2.0, 1.5)),
-        (-0.4, 0.9, 0.2),
-    ),
-    velocity=(0.3, -0.2, 0.1),
-    angular_velocity=(1.0, -2.0, 0.5),
-)
-
-
 @pytest.mark.parametrize("integrator", INTEGRATORS)
 def test_readback_of_a_rotated_asymmetric_body_is_the_scene(integrator):
     """Mass, full inertia tensor about the COM, COM state and world omega at t = 0 as the plant
     holds them (comparators.run also checks them to 1e-9 through energy and momenta)."""
-    traj = run(_free_scene(TILTED), "drake", integrator, duration=0.01)
+    traj = run(_free_scene(TILTED_CLUSTER), "drake", integrator, duration=0.01)
     got = traj.meta.bodies["cluster"]
-    assert got["mass"] == pytest.approx(TILTED.mass, rel=READBACK_RTOL)
+    assert got["mass"] == pytest.approx(TILTED_CLUSTER.mass, rel=READBACK_RTOL)
     inertia = np.asarray(got["inertia"])
-    assert np.abs(inertia - TILTED.inertia).max() <= READBACK_RTOL * np.abs(TILTED.inertia).max()
+    assert (
+        np.abs(inertia - TILTED_CLUSTER.inertia).max()
+        <= READBACK_RTOL * np.abs(TILTED_CLUSTER.inertia).max()
+    )
     assert abs(inertia[0, 1]) > 0.1 * inertia[0, 0]  # the off-diagonal terms are really there
-    np.testing.assert_allclose(got["x"], TILTED.com, rtol=0, atol=1e-15)
-    np.testing.assert_array_equal(got["v"], TILTED.velocity)
-    np.testing.assert_array_equal(got["w"], TILTED.angular_velocity)
+    np.testing.assert_allclose(got["x"], TILTED_CLUSTER.com, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(got["v"], TILTED_CLUSTER.velocity)
+    np.testing.assert_array_equal(got["w"], TILTED_CLUSTER.angular_velocity)
 
 
 @pytest.mark.parametrize("integrator", INTEGRATORS)
@@ -123,10 +105,10 @@ def test_spin_about_a_principal_axis_stays_steady(integrator):
     """The tilted cluster spun about its largest principal axis (tilted in the world): omega
     stays that world vector, and the orientation lags the rotation about it by |w| t only by
     the integrator's known truncation."""
-    inertia = TILTED.inertia
+    inertia = TILTED_CLUSTER.inertia
     moments, axes = np.linalg.eigh(inertia)
     w0 = 3.0 * axes[:, 2]
-    body = dataclasses.replace(TILTED, velocity=(0.0, 0.0, 0.0), angular_velocity=tuple(w0))
+    body = dataclasses.replace(TILTED_CLUSTER, velocity=(0.0, 0.0, 0.0), angular_velocity=tuple(w0))
     scene = _free_scene(body, dt=0.01)
     a = body_arrays(run(scene, "drake", integrator), "cluster")
     assert np.abs(a["w"] - w0).max() < STEADY_SPIN_ATOL
@@ -143,10 +125,10 @@ def test_spin_about_a_principal_axis_stays_steady(integrator):
 
 def test_angular_velocity_is_reported_in_world_axes():
     """A generic tumble: omega follows the exact world-frame omega (RK3, dt 0.001)."""
-    scene = _free_scene(TILTED)
+    scene = _free_scene(TILTED_CLUSTER)
     a = body_arrays(run(scene, "drake", "rk3"), "cluster")
     exact = exact_states(scene, a["t"])[0]
-    scale = np.linalg.norm(TILTED.angular_velocity)
+    scale = np.linalg.norm(TILTED_CLUSTER.angular_velocity)
     assert np.abs(a["w"] - exact["w"]).max() < OMEGA_RTOL * scale
     body_frame = np.einsum("sji,sj->si", [quat_to_matrix(q) for q in a["q"]], a["w"])
     assert np.abs(body_frame - exact["w"]).max() > 0.1 * scale  # the other frame would show
@@ -171,12 +153,12 @@ def test_ballistic_flight_is_exact(integrator):
     """Under gravity without contact the COM follows the closed form of its integrator: the
     parabola for RK2/RK3, the semi-implicit Euler parabola x0 + v0 t + g t (t + dt) / 2 for
     the discrete step and semi-explicit Euler."""
-    body = dataclasses.replace(TILTED, velocity=(1.0, -2.0, 5.0))
+    body = dataclasses.replace(TILTED_CLUSTER, velocity=(1.0, -2.0, 5.0))
     scene = _free_scene(body, gravity=(0.0, 0.0, -10.0), duration=1.0)
     a = body_arrays(run(scene, "drake", integrator), "cluster")
     t, g, dt = a["t"][:, None], np.array(scene.gravity), scene.dt
     lag = 0.0 if integrator in ("rk2", "rk3") else dt
-    expected = TILTED.com + np.outer(a["t"], body.velocity) + 0.5 * g * t * (t + lag)
+    expected = TILTED_CLUSTER.com + np.outer(a["t"], body.velocity) + 0.5 * g * t * (t + lag)
     assert np.abs(a["x"] - expected).max() < BALLISTIC_ATOL
     assert np.abs(a["v"] - (np.array(body.velocity) + g * t)).max() < BALLISTIC_ATOL
 
@@ -187,7 +169,7 @@ def test_contact_free_scenes_have_no_geometry():
     free = de.build(CATALOG["tumbling_box"], "sap", 0.01)
     assert free.scene_graph is None and free.plant.num_collision_geometries() == 0
     np.testing.assert_array_equal(free.plant.gravity_field().gravity_vector(), 0.0)
-    ballistic = de.build(_free_scene(TILTED, gravity=(0.0, 0.0, -10.0)), "rk2", 0.01)
+    ballistic = de.build(_free_scene(TILTED_CLUSTER, gravity=(0.0, 0.0, -10.0)), "rk2", 0.01)
     assert ballistic.plant.num_collision_geometries() == 0
     scene = CATALOG["dropped_cube"]
     dropped = de.build(scene, "sap", 0.01)

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from scenes import head_on
+from scenes import TILTED_CLUSTER, head_on, rotated
 
 from cases import CATALOG, Body, Contact, Scene
 from cases.builders import box_lattice
@@ -49,14 +49,6 @@ MAPPING_RTOL = 1e-12
 FRAME_ATOL = 1e-14
 
 
-def _rotated(rows, rotvec):
-    """Particle rows rotated about the origin by the rotation vector `rotvec`."""
-    angle = np.linalg.norm(rotvec)
-    q = np.concatenate([[math.cos(angle / 2)], np.sin(angle / 2) * np.asarray(rotvec) / angle])
-    r = quat_to_matrix(q)
-    return tuple((*(r @ np.asarray(p[:3])), p[3]) for p in rows)
-
-
 def _free_scene(name, body, duration=2.0, dt=0.001) -> Scene:
     return Scene(
         name=name,
@@ -68,22 +60,12 @@ def _free_scene(name, body, duration=2.0, dt=0.001) -> Scene:
     )
 
 
-# A tilted plate (planar: C = A + B exactly) and an asymmetric tilted cluster of unequal masses.
+# A tilted plate (planar: C = A + B exactly); TILTED_CLUSTER (tests/scenes.py) beside it.
 TILTED_PLATE = Body(
     name="plate",
     particle_radius=0.1,
-    particles=_rotated(box_lattice((1.0, 2.0, 0.0), (2, 3, 1)), (0.3, 0.5, 0.7)),
+    particles=rotated(box_lattice((1.0, 2.0, 0.0), (2, 3, 1)), (0.3, 0.5, 0.7)),
     angular_velocity=(0.5, 1.0, 2.0),
-)
-TILTED_CLUSTER = Body(
-    name="cluster",
-    particle_radius=0.1,
-    particles=_rotated(
-        ((0.0, 0.0, 0.0, 1.0), (1.0, 0.2, 0.0, 2.0), (0.1, 1.5, 0.3, 0.5), (0.4, 0.3, 2.0, 1.5)),
-        (-0.4, 0.9, 0.2),
-    ),
-    velocity=(0.3, -0.2, 0.1),
-    angular_velocity=(1.0, -2.0, 0.5),
 )
 READBACK_SCENES = [
     *(CATALOG[name] for name in ("seed_cube", "tumbling_box", "dropped_cube")),
