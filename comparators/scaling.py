@@ -122,7 +122,8 @@ def measure_scaling(
     (longer runs average scheduler noise within themselves); each repeat runs every engine once,
     so machine load falls on all of them alike. The verdict is that of the first repeat's
     trajectory. `progress` is called with a label before every run. A pair whose run took over
-    `run_limit_s` (setup and stepping) is not run at larger N in that window: its rows say so.
+    `run_limit_s` (setup and stepping) is not run at larger N in that window, nor at an N its
+    engine does not model (`comparators.engine.unsupported`): its rows say so.
     """
     engines = [n for n, e in ENGINES.items() if not e.missing] if engines is None else engines
     smallest = cube_rain(min(counts))
@@ -136,11 +137,13 @@ def measure_scaling(
         over: dict[tuple, str] = {}  # pairs past the run limit: why they are not run
         for n in sorted(counts):
             scene = cube_rain(n)
-            timed = [p for p in pairs if p not in over]
+            refused = {p: unsupported(ENGINES[p[0]], scene) for p in pairs if p not in over}
+            skipped = over | {p: f"not run: {why}" for p, why in refused.items() if why}
+            timed = [p for p in pairs if p not in skipped]
             measured = _measure_count(scene, timed, steps, repeats, report)
             by_pair = {(r["engine"], r["integrator"]): r for r in measured}
             for pair in pairs:
-                row = by_pair.get(pair) or _scaling_row(scene, pair, steps, [], [], over[pair])
+                row = by_pair.get(pair) or _scaling_row(scene, pair, steps, [], [], skipped[pair])
                 rows.append(row)
                 took = np.nan_to_num(row["setup_s"]) + np.nan_to_num(row["wall_max_s"])
                 if pair not in over and took > run_limit_s:

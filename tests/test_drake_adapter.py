@@ -17,6 +17,7 @@ pytest.importorskip("pydrake", reason="drake is not installed: the Drake adapter
 from scenes import TILTED_CLUSTER, head_on  # noqa: E402
 
 from cases import CATALOG, Body, Scene  # noqa: E402
+from cases.catalog import cube_rain  # noqa: E402
 from cases.exact import exact_states  # noqa: E402
 from comparators import drake_engine as de  # noqa: E402
 from comparators import run  # noqa: E402
@@ -322,3 +323,11 @@ def test_module_imports_without_pydrake():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert "pip install 'rigidbench[drake]'" in out.stdout
+
+
+def test_scenes_past_the_sphere_limit_are_refused_saying_why():
+    engine = de.DrakeEngine()
+    assert engine.unsupported(cube_rain(300)) is None  # 2400 spheres, the limit
+    assert "8000 contact spheres, over 2400" in engine.unsupported(cube_rain(1000))
+    free = dataclasses.replace(cube_rain(1000), contact=None, planes=())
+    assert engine.unsupported(free) is None  # no contact: no geometry registered

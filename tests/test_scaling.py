@@ -183,3 +183,13 @@ def test_an_engine_over_the_run_limit_is_not_run_at_larger_n():
         f"not run: at N = {first.n_bodies}"
     ] * len(rest)
     assert all(row.repeats == 0 and math.isnan(row.wall_s) for row in rest)
+
+
+def test_an_n_the_engine_does_not_model_is_a_row_saying_so(monkeypatch):
+    def unsupported(scene):
+        return "too many bodies" if len(scene.bodies) > 1 else None
+
+    monkeypatch.setattr(ENGINES["mujoco"], "unsupported", unsupported, raising=False)
+    table = measure_scaling(COUNTS, engines=["mujoco"], windows=(STEPS,), repeats=1)
+    verdicts = table.set_index("n_bodies")["verdict"]
+    assert verdicts[1] == "ok" and verdicts[2] == "not run: too many bodies"
