@@ -30,6 +30,7 @@ from cases.scene import Scene
 from comparators.harness import RunTimer, sample_steps
 from comparators.parity import body_readback
 from comparators.trajectory import Trajectory, package_versions
+from rigidmath.quaternion import quats_from_rotvecs
 
 try:
     import dartpy as dart
@@ -275,23 +276,12 @@ def step_and_sample(world, joints, sampled: np.ndarray) -> np.ndarray:
     return out
 
 
-def _quats_from_rotvecs(r: np.ndarray) -> np.ndarray:
-    """(..., 4) unit quaternions (w >= 0 for angles up to pi, DART's log map range) of (..., 3)
-    rotation vectors."""
-    angle = np.linalg.norm(r, axis=-1, keepdims=True)
-    half = 0.5 * angle
-    # sin(angle / 2) / angle, by its series below 1e-4 rad (error < 1e-18 there)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        scale = np.where(angle < 1e-4, 0.5 - angle**2 / 48.0, np.sin(half) / angle)
-    return np.concatenate([np.cos(half), scale * r], axis=-1)
-
-
 def samples_from_raw(raw: np.ndarray) -> np.ndarray:
     """(S, B, 13) rows x, q, v, world omega from `step_and_sample`'s records; every sample
     from the first non-finite or runaway one on is NaN."""
     samples = np.empty((*raw.shape[:2], 13))
     samples[..., 0:3] = raw[..., 3:6]
-    samples[..., 3:7] = _quats_from_rotvecs(raw[..., 0:3])
+    samples[..., 3:7] = quats_from_rotvecs(raw[..., 0:3])
     samples[..., 7:10] = raw[..., 9:12]
     samples[..., 10:13] = raw[..., 6:9]
     bad = ~(np.abs(raw) < MAX_VALUE).reshape(len(raw), -1).all(axis=1)

@@ -154,3 +154,44 @@ def quats_rotate(q, v):
     w, u = q[:, :1], q[:, 1:]
     uv = np.cross(u, v)
     return v + 2.0 * w * uv + 2.0 * np.cross(u, uv)
+
+
+def quats_from_rotvecs(r: np.ndarray) -> np.ndarray:
+    """(..., 4) unit quaternions (w >= 0 for angles up to pi) of (..., 3) rotation vectors."""
+    angle = np.linalg.norm(r, axis=-1, keepdims=True)
+    half = 0.5 * angle
+    # sin(angle / 2) / angle, by its series below 1e-4 rad (error < 1e-18 there)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = np.where(angle < 1e-4, 0.5 - angle**2 / 48.0, np.sin(half) / angle)
+    return np.concatenate([np.cos(half), scale * r], axis=-1)
+
+
+def quats_from_matrices(r: np.ndarray) -> np.ndarray:
+    """Unit quaternions (w, x, y, z), w >= 0, of rotation matrices (..., 3, 3), by Shepperd's
+    method (the branch of the largest of trace, r00, r11, r22); NaN in, NaN out."""
+    m = r.reshape(-1, 3, 3)
+    q = np.full((len(m), 4), np.nan)
+    diag = np.stack([m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2], m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]])
+    finite = np.isfinite(diag).all(axis=0)
+    branch = np.where(finite, np.argmax(np.where(finite, diag, 0.0), axis=0), -1)
+    d = m[:, [2, 0, 1], [1, 2, 0]] - m[:, [1, 2, 0], [2, 0, 1]]  # r21-r12, r02-r20, r10-r01
+    for k in range(4):
+        rows = branch == k
+        if not rows.any():
+            continue
+        a = m[rows]
+        if k == 0:
+            s = 2.0 * np.sqrt(1.0 + diag[0, rows])
+            q[rows] = np.column_stack([0.25 * s, *(d[rows] / s[:, None]).T])
+            continue
+        i, j, n = k - 1, k % 3, (k + 1) % 3  # the axis of the branch and the two after it
+        s = 2.0 * np.sqrt(1.0 + a[:, i, i] - a[:, j, j] - a[:, n, n])
+        out = np.empty((len(a), 4))
+        out[:, 0] = d[rows, i] / s
+        out[:, 1 + i] = 0.25 * s
+        out[:, 1 + j] = (a[:, i, j] + a[:, j, i]) / s
+        out[:, 1 + n] = (a[:, i, n] + a[:, n, i]) / s
+        q[rows] = out
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q[q[:, 0] < 0] *= -1.0
+    return q.reshape(*r.shape[:-2], 4)

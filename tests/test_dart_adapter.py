@@ -23,7 +23,6 @@ from comparators import ENGINES, run  # noqa: E402
 from comparators.metrics import body_arrays, conserved_quantities  # noqa: E402
 from rigidmath.inertia import principal_frame  # noqa: E402
 from rigidmath.quaternion import (  # noqa: E402
-    quat_from_rotvec,
     quat_to_matrix,
     quats_angle_between,
 )
@@ -325,17 +324,6 @@ def test_joint_state_is_the_body_nodes_world_pose_and_velocity():
     np.testing.assert_allclose(sample[7:10], velocity[3:], rtol=0, atol=FRAME_ATOL)
     # not the body-frame velocity, which differs by O(1) here
     assert np.abs(node.getSpatialVelocity()[:3] - velocity[:3]).max() > 0.1
-
-
-def test_quaternions_from_rotation_vectors_match_rigidmath():
-    rng = np.random.default_rng(3)
-    axes = rng.normal(size=(64, 3))
-    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
-    angles = np.concatenate([[0.0, 1e-9, 1e-5, 2e-4, math.pi], rng.uniform(0, math.pi, 59)])
-    rotvecs = axes * angles[:, None]
-    got = de._quats_from_rotvecs(rotvecs)
-    want = np.array([quat_from_rotvec(r) for r in rotvecs])
-    np.testing.assert_allclose(got, want, rtol=0, atol=1e-15)
 
 
 @pytest.mark.parametrize("integrator", INTEGRATORS)
