@@ -98,9 +98,23 @@ class RunTimer:
         )
 
     def trajectory(
-        self, steps: np.ndarray, samples: np.ndarray, meta: RunMeta, extra: dict | None = None
+        self,
+        steps: np.ndarray,
+        samples: np.ndarray,
+        meta: RunMeta,
+        extra: dict | None = None,
+        particles: np.ndarray | None = None,
     ) -> Trajectory:
         """The trajectory table from the sampled step indices (S,) and the samples (S, B, 13)
-        in `comparators.trajectory.STATE` order, per body in scene order; t = step * dt."""
+        in `comparators.trajectory.STATE` order, per body in scene order; t = step * dt.
+
+        `extra` maps optional columns to (S, B) arrays; `particles` (S, N, 3) are the world
+        positions of every particle, bodies packed in scene order, for an engine whose bodies
+        deform (`Trajectory.particles`)."""
         names = [b.name for b in self.scene.bodies]
-        return Trajectory.from_samples(steps * self.dt, names, samples, meta, extra)
+        by_body = None
+        if particles is not None:
+            ends = np.cumsum([len(b.particles) for b in self.scene.bodies])
+            parts = np.split(np.asarray(particles), ends[:-1], axis=1)
+            by_body = dict(zip(names, parts, strict=True))
+        return Trajectory.from_samples(steps * self.dt, names, samples, meta, extra, by_body)

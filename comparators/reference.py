@@ -76,7 +76,7 @@ class ReferenceEngine:
             package_versions("numba"), settings, bodies, _solver_report(result.solver)
         )
         extra = None if result.shape_error is None else {"shape_error": result.shape_error}
-        return timer.trajectory(result.steps, result.samples, meta, extra)
+        return timer.trajectory(result.steps, result.samples, meta, extra, result.particles)
 
 
 def _contact_settings(scene: Scene, integrator: str, dt: float) -> dict:

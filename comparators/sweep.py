@@ -216,7 +216,7 @@ def execute(spec: RunSpec) -> tuple[Trajectory | None, str | None, tuple | None]
     if error is not None:
         return None, error, None
     meta = dataclasses.replace(traj.meta, wall_s=spread(walls).median, wall_runs=walls)
-    traj = Trajectory(traj.table, meta)
+    traj = dataclasses.replace(traj, meta=meta)
     return traj, None, analyse(spec, traj)
 
 

@@ -2,7 +2,9 @@
 
 One row per sample per body, columns `COLUMNS` (plus optional ones such as `shape_error`):
 COM position and velocity (world, m and m/s), orientation quaternion (w, x, y, z) mapping the
-body's placement at t = 0 to its current one, world-frame angular velocity (rad/s).
+body's placement at t = 0 to its current one, world-frame angular velocity (rad/s). An engine
+whose bodies deform (the reference's `seed`) also records where every particle is
+(`Trajectory.particles`): the pose places a rigid body's particles, not a deforming one's.
 """
 
 from __future__ import annotations
@@ -31,6 +33,9 @@ ANGULAR_VELOCITY = ["wx", "wy", "wz"]
 STATE = POSITION + QUATERNION + VELOCITY + ANGULAR_VELOCITY
 COLUMNS = ["t", "body", *STATE]
 META_KEY = b"rigidbench"
+# The Parquet column holding `Trajectory.particles`: per table row, that body's particles at
+# that sample as a list x0, y0, z0, x1, ... (a list column, so bodies of any size share it).
+PARTICLES_COLUMN = "particles"
 
 
 def package_versions(*names: str) -> dict[str, str]:
@@ -84,14 +89,29 @@ class RunMeta:
 
 @dataclass(frozen=True)
 class Trajectory:
+    """A run's table and metadata.
+
+    Attributes:
+      table: one row per sample per body (`COLUMNS`, plus optional columns).
+      meta: what produced it.
+      particles: by body name, (S, n, 3) world positions (m) of the body's n particles at each
+        of its S samples (in table order), or None: recorded only where the pose cannot place
+        them (a deforming body). Written to and read from Parquet (so the results cache keeps
+        them); a CSV file holds the table alone.
+    """
+
     table: pd.DataFrame
     meta: RunMeta
+    particles: dict[str, np.ndarray] | None = field(default=None, compare=False)
 
     @classmethod
-    def from_samples(cls, times, bodies, samples, meta: RunMeta, extra=None) -> Trajectory:
+    def from_samples(
+        cls, times, bodies, samples, meta: RunMeta, extra=None, particles=None
+    ) -> Trajectory:
         """Build from times (S,), body names (B,), samples (S, B, 13) in `STATE` order.
 
-        `extra` maps optional column names to (S, B) arrays.
+        `extra` maps optional column names to (S, B) arrays; `particles` maps body names to
+        (S, n, 3) particle positions (`Trajectory.particles`), or is None.
         """
         samples = np.asarray(samples, dtype=float)
         n_s, n_b = samples.shape[:2]
@@ -103,7 +123,20 @@ class Trajectory:
         data.update({c: flat[:, k] for k, c in enumerate(STATE)})
         for name, values in (extra or {}).items():
             data[name] = np.asarray(values, dtype=float).reshape(n_s * n_b)
-        return cls(pd.DataFrame(data), meta)
+        if particles is not None:
+            particles = {name: np.asarray(p, dtype=float) for name, p in particles.items()}
+            for name, p in particles.items():
+                if p.ndim != 3 or p.shape[0] != n_s or p.shape[2] != 3:
+                    raise ValueError(
+                        f"particles of body {name!r} have shape {p.shape}: expected "
+                        f"({n_s}, n, 3), the positions of its n particles at each sample"
+                    )
+            if sorted(particles) != sorted(map(str, bodies)):
+                raise ValueError(
+                    f"particles for bodies {sorted(particles)}: expected every body's, "
+                    f"{sorted(map(str, bodies))}"
+                )
+        return cls(pd.DataFrame(data), meta, particles)
 
     @property
     def bodies(self) -> list[str]:
@@ -142,10 +175,26 @@ class Trajectory:
             _atomic_write(path, self.table.to_csv(index=False, float_format="%.17g").encode())
         else:
             table = pa.Table.from_pandas(self.table, preserve_index=False)
+            if self.particles is not None:
+                table = table.append_column(PARTICLES_COLUMN, self._particle_lists())
             table = table.replace_schema_metadata({**table.schema.metadata, META_KEY: meta})
             with atomic_path(path) as tmp:
                 pq.write_table(table, tmp)
         return path
+
+    def _particle_lists(self) -> pa.LargeListArray:
+        """`particles` as the Parquet list column `PARTICLES_COLUMN`: per table row, that body's
+        particles at that sample, x0, y0, z0, x1, ..."""
+        owner = self.table["body"].to_numpy(dtype=str)
+        sizes = np.zeros(len(owner), dtype=np.int64)
+        for name, p in self.particles.items():
+            sizes[owner == name] = p.shape[1] * 3
+        offsets = np.concatenate([[0], np.cumsum(sizes)])
+        values = np.empty(offsets[-1])
+        for name, p in self.particles.items():
+            starts = offsets[:-1][owner == name]
+            values[starts[:, None] + np.arange(p.shape[1] * 3)] = p.reshape(len(p), -1)
+        return pa.LargeListArray.from_arrays(pa.array(offsets), pa.array(values))
 
     @classmethod
     def read(cls, path: str | os.PathLike) -> Trajectory:
@@ -155,9 +204,28 @@ class Trajectory:
             meta = json.loads(path.with_name(path.name + ".meta.json").read_text())
         else:
             arrow = pq.read_table(path)
-            table = arrow.to_pandas()
             meta = json.loads(arrow.schema.metadata[META_KEY])
+            if PARTICLES_COLUMN in arrow.column_names:
+                lists = arrow.column(PARTICLES_COLUMN).combine_chunks()
+                arrow = arrow.drop_columns([PARTICLES_COLUMN])
+                table = arrow.to_pandas()
+                return cls(table, RunMeta(**meta), _particles_from_lists(table, lists))
+            table = arrow.to_pandas()
         return cls(table, RunMeta(**meta))
+
+
+def _particles_from_lists(table: pd.DataFrame, lists: pa.LargeListArray) -> dict[str, np.ndarray]:
+    """`Trajectory.particles` from the list column `Trajectory._particle_lists` wrote."""
+    owner = table["body"].to_numpy(dtype=str)
+    offsets = lists.offsets.to_numpy()
+    values = lists.values.to_numpy()
+    particles = {}
+    for name in dict.fromkeys(owner):
+        rows = np.flatnonzero(owner == name)
+        size = offsets[rows[0] + 1] - offsets[rows[0]]
+        flat = values[offsets[rows][:, None] + np.arange(size)]
+        particles[name] = flat.reshape(len(rows), size // 3, 3)
+    return particles
 
 
 _UMASK = os.umask(0)

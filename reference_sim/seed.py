@@ -162,19 +162,24 @@ def _record_particles(model, pos, vel, out, shape_error):
 
 @compiled
 def run_seed(model, pos, vel, cm, V, omega, dt, n_steps, stride):
-    """Step n_steps times in place; return (steps, samples (S, B, 13), shape_error (S, B))."""
+    """Step n_steps times in place; return (steps, samples (S, B, 13), shape_error (S, B),
+    particles (S, N, 3)): the particles' world positions at each sample, since the seed's body
+    deforms and its pose alone cannot place them."""
     nb = cm.shape[0]
     n_samples = n_steps // stride + 1 + (1 if n_steps % stride else 0)
     out = np.empty((n_samples, nb, 13))
     shape = np.empty((n_samples, nb))
+    particles = np.empty((n_samples, pos.shape[0], 3))
     steps = np.empty(n_samples, dtype=np.int64)
     _record_particles(model, pos, vel, out[0], shape[0])
+    particles[0] = pos
     steps[0] = 0
     s = 1
     for n in range(1, n_steps + 1):
         seed_step(model, pos, vel, cm, V, omega, dt)
         if n % stride == 0 or n == n_steps:
             _record_particles(model, pos, vel, out[s], shape[s])
+            particles[s] = pos
             steps[s] = n
             s += 1
-    return steps, out, shape
+    return steps, out, shape, particles

@@ -33,6 +33,8 @@ class SimResult(NamedTuple):
       steps: (S,) step index of each sample; t = steps * dt.
       samples: (S, B, 13) per body x (3), q (4, w first), v (3), world omega (3).
       shape_error: (S, B) largest relative change of an inter-particle distance (seed only).
+      particles: (S, N, 3) world positions of every particle, bodies packed as in the model
+        (seed only: its body deforms, so its pose does not place its particles).
       solver: the contact solver's statistics (rigid integrators only): solves, Gauss-Seidel
         sweeps, solves stopped unconverged (at MAX_ITERATIONS, stalled or cycling), subspace
         steps and extrapolations, over the run.
@@ -43,6 +45,7 @@ class SimResult(NamedTuple):
     steps: np.ndarray
     samples: np.ndarray
     shape_error: np.ndarray | None
+    particles: np.ndarray | None
     solver: np.ndarray | None
     state: RigidState | SeedState
     compile_s: float
@@ -50,13 +53,14 @@ class SimResult(NamedTuple):
 
 
 def _call(model, integrator, state, dt, n_steps, stride):
-    """(steps, samples, shape_error, solver) of a run, None where the integrator has none."""
+    """(steps, samples, shape_error, particles, solver) of a run, None where the integrator
+    has none."""
     if integrator == "seed":
         return (*run_seed(model, *state, dt, n_steps, stride), None)
     steps, samples, solver = run_rigid_fields(
         tuple(model), INTEGRATOR_CODES[integrator], *state, dt, n_steps, stride
     )
-    return steps, samples, None, solver
+    return steps, samples, None, None, solver
 
 
 def simulate(
@@ -77,9 +81,11 @@ def simulate(
     compile_s = time.perf_counter() - start
     work = type(state)(*(a.copy() for a in state))
     start = time.perf_counter()
-    steps, samples, shape, solver = _call(model, integrator, work, dt, int(n_steps), int(stride))
+    steps, samples, shape, particles, solver = _call(
+        model, integrator, work, dt, int(n_steps), int(stride)
+    )
     wall_s = time.perf_counter() - start
-    return SimResult(steps, samples, shape, solver, work, compile_s, wall_s)
+    return SimResult(steps, samples, shape, particles, solver, work, compile_s, wall_s)
 
 
 # Parts of the simulator that compile independently; the stages of one group run in order
