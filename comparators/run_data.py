@@ -7,7 +7,8 @@ deforming engine (the seed) adds a `shape_error` column: at samples where its sh
 by more than RIGID_SHAPE_RTOL the rigid placement is not where its particles are, so their
 distances to planes are unknown there (NaN, left out of every measurement) and only the COM is
 tested for tunnelling (the COM of a cluster lies inside its particles' hull, so a COM behind a
-plane means particles behind it too).
+plane means particles behind it too). `particle_tracks`, what an animation draws, places them
+where the engine recorded them instead (`Trajectory.particles`), where it did.
 """
 
 from __future__ import annotations
@@ -112,6 +113,18 @@ def particle_positions(traj: Trajectory, scene: Scene, body_index: int) -> np.nd
     """(S, n, 3) world positions of one body's particles at every sample, placed rigidly from
     its COM x, orientation q and the particles' offsets from the COM at t = 0."""
     return RunData(traj, scene).particles(body_index)
+
+
+def particle_tracks(traj: Trajectory, scene: Scene) -> list[np.ndarray]:
+    """Per body (scene order), (S, n, 3) world positions of its particles at every sample: as
+    recorded where the engine records them (`Trajectory.particles`: a deforming body such as the
+    seed's), else placed rigidly from the pose (`particle_positions`). What an animation draws."""
+    recorded = traj.particles or {}
+    run = RunData(traj, scene)
+    return [
+        recorded[body.name] if body.name in recorded else run.particles(k)
+        for k, body in enumerate(scene.bodies)
+    ]
 
 
 def clearance(traj: Trajectory, scene: Scene, body_index: int, plane: Plane) -> np.ndarray:
