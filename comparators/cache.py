@@ -1,7 +1,8 @@
 """The results cache: each run's trajectory stored once, under a key of everything it depends on.
 
 The key hashes the case's content (its TOML), engine, integrator, dt, timing repeats, the
-versions of the packages that compute results, the code version (a hash of the sources of
+duration where a run (an animation's) covers other than the case's, the versions of the packages
+that compute results, the code version (a hash of the sources of
 `cases`, `reference_sim` and `comparators`) and the sources of the package that defines the
 engine (a plugin's own code). Re-running after a change recomputes only what the
 change can affect. Entries are Parquet files written atomically (temporary name, then rename), so
@@ -52,8 +53,10 @@ def engine_code(engine: str) -> str:
     return _sources_digest(sorted(root.rglob("*.py")), root)
 
 
-def run_key(scene, engine: str, integrator: str, dt: float, repeats: int) -> str:
-    """The cache key of one run."""
+def run_key(
+    scene, engine: str, integrator: str, dt: float, repeats: int, duration: float | None = None
+) -> str:
+    """The cache key of one run; `duration` (s) when it is not the scene's own."""
     payload = {
         "scene": scene_to_toml(scene),
         "engine": engine,
@@ -64,6 +67,8 @@ def run_key(scene, engine: str, integrator: str, dt: float, repeats: int) -> str
         "code": code_version(),
         "engine_code": engine_code(engine),
     }
+    if duration is not None and duration != scene.duration:
+        payload["duration"] = repr(float(duration))
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:32]
 
 

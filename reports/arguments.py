@@ -94,6 +94,27 @@ def _add_report(sub) -> None:
     )
 
 
+def _add_animate(sub) -> None:
+    anim = sub.add_parser(
+        "animate", help="a GIF of a case's motion, engines side by side, the exact one as a ghost"
+    )
+    anim.add_argument("case", help="catalog name or path to a .toml case file")
+    anim.add_argument("--engines", nargs="+", help="engine names (default: every available one)")
+    anim.add_argument(
+        "--integrator",
+        nargs="+",
+        help="integrator name(s), each run on every engine (default: each engine's default)",
+    )
+    anim.add_argument(
+        "--dt", type=parse_positive_number, help="time step in s (default: the case's)"
+    )
+    anim.add_argument(
+        "--duration", type=parse_positive_number, help="simulated time in s (default: the case's)"
+    )
+    anim.add_argument("--out", required=True, help="the animation, FILE.gif")
+    anim.add_argument("--cache", help=f"results cache directory (default: {DEFAULT_OUT}/cache)")
+
+
 def _add_bench(sub) -> None:
     ben = sub.add_parser("bench", help="steps/s of case x engine x integrator, side by side")
     _add_selection(ben)
@@ -118,7 +139,7 @@ def _add_bench(sub) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The parser of every command: list, engines, show, run, report, bench."""
+    """The parser of every command: list, engines, show, run, animate, report, bench."""
     parser = argparse.ArgumentParser(
         prog="rigidbench", description="Validation and benchmark suite for rigid-body physics."
     )
@@ -127,6 +148,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("engines", help="engines and their integrators")
     _add_show(sub)
     _add_run(sub)
+    _add_animate(sub)
     _add_report(sub)
     _add_bench(sub)
     return parser

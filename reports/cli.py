@@ -19,7 +19,7 @@ from rich.text import Text
 from cases import CATALOG, InputError, resolve_case, scene_to_toml
 from cases.catalog import CUBE_RAIN_MAX, CUBE_RAIN_PREFIX, CUBE_RAIN_REPRESENTATIVE
 from comparators import ENGINES, get_engine, run
-from comparators.engine import ContractError, left_out
+from comparators.engine import ContractError, left_out, unsupported
 from comparators.parity import ParityError
 from comparators.summary import summarize
 from comparators.trajectory import atomic_path
@@ -140,6 +140,99 @@ def _cmd_run(args, console: Console) -> None:
         console.print(f"wrote {len(traj.table)} rows to {args.out}")
 
 
+def _gif_out(text: str) -> Path:
+    """The animation's --out FILE.gif, checked before any run: a .gif in an existing directory."""
+    out = Path(text)
+    if out.suffix.lower() != ".gif":
+        raise InputError(f"--out {text!r}: expected a file name ending in .gif")
+    if not out.parent.is_dir():
+        raise InputError(f"--out {text!r}: directory {str(out.parent)!r} missing")
+    return out
+
+
+def _animated_runs(args, scene, console: Console) -> list[tuple[str, str]]:
+    """(engine, integrator) of every panel, checked before any run: each engine (every
+    available one that models the case by default, leaving the others out with a line saying
+    why) with each of --integrator, or its default."""
+    engines = _engines(args.engines)
+    if not args.engines:
+        _print_left_out(console, [scene], engines)
+        engines = [name for name in engines if not unsupported(ENGINES[name], scene)]
+    pairs = []
+    for name in engines:
+        engine = get_engine(name)
+        if engine.missing:
+            raise InputError(f"engine {name!r} is unavailable: {engine.missing}")
+        refusal = unsupported(engine, scene)
+        if refusal:
+            raise InputError(f"engine {name!r} cannot run {scene.name!r}: {refusal}")
+        for integrator in args.integrator or [engine.default_integrator]:
+            if integrator not in engine.integrators:
+                raise InputError(
+                    f"unknown integrator {integrator!r} for engine {name!r}: "
+                    f"expected one of {', '.join(engine.integrators)}"
+                )
+            pairs.append((name, integrator))
+    if not pairs:
+        raise InputError(f"no engine here models {scene.name!r}: nothing to animate")
+    return pairs
+
+
+def _cached_run(scene, engine: str, integrator: str, dt: float, duration: float, cache):
+    """One run through the results cache: a report's run of it (timed SWEEP_REPEATS times)
+    or an earlier single run where there is one, else run once now and stored as such.
+    Returns the `Trajectory`, or the reason the run failed."""
+    from comparators.cache import run_key
+    from comparators.timing import SWEEP_REPEATS, attempt_run
+
+    keys = [run_key(scene, engine, integrator, dt, r, duration) for r in (SWEEP_REPEATS, 1)]
+    for key in keys:
+        traj = cache.get(key)
+        if traj is not None:
+            return traj
+    traj, error = attempt_run(scene, engine, integrator, dt, duration)
+    if traj is None:
+        return error
+    cache.put(keys[-1], traj)
+    return traj
+
+
+def _cmd_animate(args, console: Console) -> None:
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from comparators.cache import ResultsCache
+    from reports.animation import animate
+    from reports.arguments import DEFAULT_OUT
+
+    scene = resolve_case(args.case)
+    out = _gif_out(args.out)
+    pairs = _animated_runs(args, scene, console)
+    dt = scene.dt if args.dt is None else args.dt
+    duration = scene.duration if args.duration is None else args.duration
+    if dt > duration:
+        raise InputError(f"dt {dt} is longer than duration {duration}: expected dt <= duration")
+    cache = ResultsCache(Path(args.cache) if args.cache else DEFAULT_OUT / "cache")
+    runs = []
+    with console.status(f"running {scene.name}", spinner="dots") as status:
+        for engine, integrator in pairs:
+            status.update(f"running {scene.name} on {engine} {integrator}")
+            traj = _cached_run(scene, engine, integrator, dt, duration, cache)
+            runs.append((f"{engine}/{integrator}", traj))
+    for label, traj in runs:
+        if isinstance(traj, str):
+            console.print(f"{label} failed: {traj}", markup=False)
+    columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn()]
+    with Progress(*columns, TimeElapsedColumn(), console=console) as bar:
+        task = bar.add_task(f"drawing {scene.name}", total=None)
+        animate(
+            scene,
+            runs,
+            out,
+            progress=lambda done, total: bar.update(task, completed=done, total=total),
+        )
+    console.print(f"wrote {out} ({out.stat().st_size / 1e3:.0f} kB, {len(runs)} panels)")
+
+
 def _bench_out(text: str | None) -> Path | None:
     """The bench's --out FILE.csv, checked before any run: a .csv in an existing directory."""
     if not text:
@@ -239,6 +332,7 @@ COMMANDS = {
     "engines": _cmd_engines,
     "show": _cmd_show,
     "run": _cmd_run,
+    "animate": _cmd_animate,
     "report": _cmd_report,
     "bench": _cmd_bench,
 }
