@@ -1,8 +1,9 @@
 """Which figures the report draws, where they go, and the keys the sections find them by.
 
 Figures are keyed by (case, kind): per case "drift", "convergence", "work_precision" and
-"stability"; `THROUGHPUT_FIGURE` and `SCALING_FIGURE` for the two figures across cases. How each
-figure is drawn is `reports.plots`.
+"stability", and for `ANIMATED_CASES` "animation"; `THROUGHPUT_FIGURE` and `SCALING_FIGURE` for
+the two figures across cases. How each figure is drawn is `reports.plots`, how an animation is
+`reports.animation`.
 """
 
 from __future__ import annotations
@@ -15,13 +16,21 @@ from pathlib import Path
 import pandas as pd
 
 from comparators.bench import throughput_from_results
+from comparators.engine import ENGINES
 from comparators.sweep import SweepResult
-from reports import plots
+from comparators.trajectory import Trajectory
+from reports import animation, plots
 from reports.convergence import MIN_FIT_POINTS
 
 FIGURES_DIR = "figures"  # beside report.md and index.html
 THROUGHPUT_FIGURE = (None, "throughput")
 SCALING_FIGURE = ("scaling", "scaling")
+# The cases whose motion the report animates: the core ones. An animation takes a second or two
+# to draw, so every case's would not fit the quick report's budget.
+ANIMATED_CASES = ("seed_cube", "free_spin_cube", "tumbling_box", "dropped_cube")
+# Runs an animation shows beside each engine's default integrator: the blog's scheme on the
+# blog's scene, where its cube flattens.
+EXTRA_ANIMATED_RUNS = {"seed_cube": (("reference", "seed"),)}
 
 
 def _case_figures(task: tuple) -> dict[tuple, Path]:
@@ -40,28 +49,70 @@ def _case_figures(task: tuple) -> dict[tuple, Path]:
     return {(case, kind): p for kind, p in drawn.items() if p is not None}
 
 
-def write_case_figures(
-    result: SweepResult, fits: pd.DataFrame, out: Path, jobs: int | None = None
-) -> dict[tuple, Path]:
-    """Every case's figures, by (case, kind); kinds without anything to draw are left out.
+def animated_runs(result: SweepResult, case: str) -> list[tuple[str, Trajectory | str]]:
+    """(label, trajectory or why there is none) of the runs `case`'s animation shows: at its
+    default dt, each engine's default integrator and the case's EXTRA_ANIMATED_RUNS; the
+    reference's first, then by engine, each engine's default integrator first."""
+    scene = result.scenes[case]
+    table = result.results
+    runs = table[(table["case"] == case) & (table["dt"] == scene.dt)]
+    defaults = {name: engine.default_integrator for name, engine in ENGINES.items()}
+    wanted = set(defaults.items()) | set(EXTRA_ANIMATED_RUNS.get(case, ()))
+    chosen = [r for r in runs.itertuples() if (r.engine, r.integrator) in wanted]
+    chosen.sort(
+        key=lambda r: (r.engine != "reference", r.engine, r.integrator != defaults.get(r.engine))
+    )
+    panels = []
+    for r in chosen:
+        traj = result.trajectories.get(r.key)
+        reason = str(r.verdict).removeprefix("failed: ")
+        panels.append((f"{r.engine}/{r.integrator}", reason if traj is None else traj))
+    return panels
 
-    Cases are drawn in `jobs` processes (default: one per core, at most one per case): Agg
-    rendering is CPU-bound and the cases are independent.
+
+def _case_animation(task: tuple) -> dict[tuple, Path]:
+    """One case's animation by (case, "animation"): `task` is (case, scene, runs, directory)."""
+    case, scene, runs, path = task
+    path.mkdir(parents=True, exist_ok=True)
+    return {(case, "animation"): animation.animate(scene, runs, path / f"{case}_motion.gif")}
+
+
+def _draw(task: tuple) -> dict[tuple, Path]:
+    """Run one drawing task, (function, its argument), in whichever process the pool chose."""
+    function, argument = task
+    return function(argument)
+
+
+def write_case_figures(
+    result: SweepResult,
+    fits: pd.DataFrame,
+    out: Path,
+    jobs: int | None = None,
+    animated: tuple[str, ...] = ANIMATED_CASES,
+) -> dict[tuple, Path]:
+    """Every case's figures, by (case, kind), and the animations of the `animated` cases;
+    kinds without anything to draw are left out.
+
+    Figures are drawn in `jobs` processes (default: one per core, at most one per task), the
+    animations first, the longest tasks: drawing is CPU-bound and the cases are independent.
     """
     tasks = []
+    for case in animated:
+        runs = animated_runs(result, case) if case in result.scenes else []
+        if runs:
+            tasks.append((_case_animation, (case, result.scenes[case], runs, out / FIGURES_DIR)))
     for case, runs in result.results.groupby("case", sort=False):
         scene = result.scenes[case]
         drawn = plots.closest_runs(runs, set(result.trajectories), scene.dt)["key"]
         trajectories = {key: result.trajectories[key] for key in drawn}
-        tasks.append(
-            (case, runs, trajectories, scene, fits[fits["case"] == case], out / FIGURES_DIR)
-        )
+        arguments = (case, runs, trajectories, scene, fits[fits["case"] == case], out / FIGURES_DIR)
+        tasks.append((_case_figures, arguments))
     jobs = min(len(tasks), jobs or os.cpu_count() or 1)
     if jobs <= 1:
-        drawn = [_case_figures(task) for task in tasks]
+        drawn = [_draw(task) for task in tasks]
     else:
         with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("fork")) as pool:
-            drawn = list(pool.map(_case_figures, tasks))
+            drawn = list(pool.map(_draw, tasks))
     return {key: path for figures in drawn for key, path in figures.items()}
 
 

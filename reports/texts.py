@@ -19,7 +19,7 @@ def contents(scaling: bool) -> str:
     scaled = scaled if scaling else ("", "")
     return (
         "Sections: how the timings were measured; throughput; the catalog; per case its "
-        "metrics, drift over "
+        "motion (the core cases, animated), metrics, drift over "
         "time, convergence in dt, work-precision, stability map and measured outcomes; the "
         "largest stable dt; contact validation against closed forms; cost to reach a tolerance; "
         f"{scaled[0]}the parity manifest; machine and versions. All numbers are in `results.csv` "
@@ -60,6 +60,13 @@ CASE_CATALOG = (
 
 # ---- a case's sections -----------------------------------------------------------------------
 
+MOTION = (
+    "How to read: one panel per run at the case's default dt, labelled engine/integrator, the "
+    "time above them; each body's particles as spheres joined to their neighbours, the "
+    "lighter ones on one side of the body so that a spin or a flip shows; "
+    "planes as grids; grey rings are the exact motion, where there is one; a run whose state "
+    "turns non-finite stops there, marked diverged."
+)
 METRICS = (
     "How to read: drifts are relative maxima over the run (0 is exact conservation), errors "
     "the largest over the run against the reference; steps/s and realtime factor are "

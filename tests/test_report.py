@@ -249,6 +249,7 @@ def test_report_files(sweep, report):
     figures = [name for name in written if name.startswith("figures/")]
     kinds = ("drift", "convergence", "work_precision", "stability")
     expected = [f"figures/tumbling_box_{kind}.png" for kind in kinds] + ["figures/throughput.png"]
+    expected.append("figures/tumbling_box_motion.gif")  # a core case: animated
     assert sorted(figures) == sorted(expected)
     assert all((out / name).stat().st_size > 10_000 for name in figures)
     assert not [p.name for p in out.iterdir() if p.name.startswith(".")], "temporary files left"
@@ -274,7 +275,7 @@ def test_report_text(sweep, report):
         assert name in text
     assert missing_references(out / "index.html") == []
     html = (out / "index.html").read_text()
-    assert html.count("<img") == 5 and html.count("<table>") >= 6
+    assert html.count("<img") == 6 and html.count("<table>") >= 6  # 5 figures, 1 animation
     assert 'style="text-align: right;"' in html  # numbers right-aligned
 
 
@@ -427,7 +428,7 @@ def test_report_with_scaling(sweep, tmp_path):
         ("mujoco", "100"): "–",
     }
     assert missing_references(written["index.html"]) == []
-    figures = [name for name in written if name.endswith(".png")]
+    figures = [name for name in written if name.endswith((".png", ".gif"))]
     assert "figures/scaling.png" in figures
     assert written["index.html"].read_text().count("<img") == len(figures)
 

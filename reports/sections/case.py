@@ -1,5 +1,6 @@
-"""One case's section: its metrics, drift over time, convergence in dt, work-precision,
-stability map and, for a contact-free case, its measured outcomes."""
+"""One case's section: its motion (animated, for the cases the report animates), metrics, drift
+over time, convergence in dt, work-precision, stability map and, for a contact-free case, its
+measured outcomes."""
 
 from __future__ import annotations
 
@@ -156,8 +157,14 @@ def case_section(
     work_precision = case_figure(figures, case, "work_precision", out, wp_alt)
     stability = case_figure(figures, case, "stability", out, "stability map")
     fit_table = _fit_table(fits[fits["case"] == case])
+    motion = []
+    if (case, "animation") in figures:
+        motion = subsection(
+            "Motion", texts.MOTION, case_figure(figures, case, "animation", out, "motion")
+        )
     return [
         *_intro(result, case),
+        *motion,
         *subsection("Metrics", texts.METRICS + solver, _metrics_table(runs)),
         *subsection("Drift over time", texts.DRIFT, drift),
         *subsection("Convergence in dt", texts.CONVERGENCE + contact, errors, fit_table),
