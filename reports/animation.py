@@ -43,6 +43,7 @@ LOOP_S = 8.0  # a loop plays in about this long, each frame FRAME_MS_RANGE ms
 FRAME_MS_RANGE = (60, 200)
 LAST_FRAME_MS = 1500  # a pause on the final state before the loop starts again
 HEADER_PX, LABEL_PX, MARGIN_PX = 24, 18, 10
+NOTE_LINES = 3  # a failed run's reason, at most this many lines at the foot of its panel
 # The camera looks down at ELEVATION_DEG from the horizontal (up is against gravity, z without
 # gravity), from AZIMUTH_DEG about the up axis: the floor is seen from above, a box's three
 # faces at once.
@@ -50,9 +51,10 @@ ELEVATION_DEG, AZIMUTH_DEG = 24.0, -55.0
 # Space around the run's extent, as a fraction of its largest side: planes show as a floor
 # around the bodies, not an edge under them.
 PAD_FRACTION = 0.12
-# A run whose extent is this many times the median run's has flown off: it does not set the
-# camera (every other panel would shrink to a dot) and is drawn clipped to its panel.
-FLY_OFF_FACTOR = 5.0
+# The camera leaves out runs that flew off (`scene_extent`): a diverging run's extent grows by
+# orders of magnitude, a sound run's stays within a few times another's.
+FLY_OFF_FACTOR = 10.0
+MAX_REACH = 1000.0
 # Particles are joined by bonds (`bonds`): the shape reads at a glance, and a deforming body's
 # bonds show it deform. A particle on a bond's ball, to rounding of metre-scale coordinates,
 # blocks it; clusters past MAX_BONDED_PARTICLES would be a tangle of lines.
@@ -144,19 +146,29 @@ def _box(points: np.ndarray) -> np.ndarray | None:
     return None if len(flat) == 0 else np.array([flat.min(axis=0), flat.max(axis=0)])
 
 
+def _size(box: np.ndarray) -> float:
+    return float(np.max(box[1] - box[0]))
+
+
 def scene_extent(scene: Scene, panels: Sequence[Panel], ghost) -> np.ndarray:
-    """(2, 3) the box the camera frames: every particle surface of every run over its drawn
-    samples, runs that flew off (FLY_OFF_FACTOR) aside, padded by PAD_FRACTION."""
-    boxes = [_box(np.concatenate([t.reshape(-1, 3) for t in p.tracks])) for p in panels if p.tracks]
-    if ghost is not None:
-        boxes.append(_box(np.concatenate([t.reshape(-1, 3) for t in ghost])))
-    boxes = [b for b in boxes if b is not None]
-    if not boxes:  # nothing ran: frame the scene at t = 0
-        boxes = [_box(np.concatenate([b.positions for b in scene.bodies]))]
-    sizes = np.array([np.linalg.norm(b[1] - b[0]) for b in boxes])
-    kept = [b for b, s in zip(boxes, sizes, strict=True) if s <= FLY_OFF_FACTOR * np.median(sizes)]
+    """(2, 3) the box the camera frames: every particle of every run over its drawn samples,
+    runs that flew off aside, padded by PAD_FRACTION.
+
+    A run has flown off when its extent is over FLY_OFF_FACTOR times the smallest run's (or the
+    scene's at t = 0, or the exact motion's, if larger): every other panel would shrink to a
+    dot. It is drawn clipped to its panel. Nothing is framed beyond MAX_REACH times the scene's
+    size at t = 0 from where it starts (a lone run that flew off).
+    """
+    start = _box(np.concatenate([b.positions for b in scene.bodies]))
+    floor = [start] + ([_box(np.concatenate(ghost, axis=1))] if ghost is not None else [])
+    runs = [_box(np.concatenate(p.tracks, axis=1)) for p in panels if p.tracks]
+    runs = [b for b in runs if b is not None]
+    reference = max([_size(b) for b in floor] + [min(map(_size, runs), default=0.0)])
+    kept = [b for b in runs + floor if _size(b) <= FLY_OFF_FACTOR * reference]
     lower = np.min([b[0] for b in kept], axis=0)
     upper = np.max([b[1] for b in kept], axis=0)
+    centre, reach = start.mean(axis=0), MAX_REACH * max(_size(start), 1e-9)
+    lower, upper = np.maximum(lower, centre - reach), np.minimum(upper, centre + reach)
     radius = max(b.particle_radius for b in scene.bodies)
     pad = radius + PAD_FRACTION * max(float(np.max(upper - lower)), 2 * radius)
     return np.array([lower - pad, upper + pad])
@@ -447,6 +459,17 @@ class _Layout:
         return column * self.panel[0], HEADER_PX + row * (LABEL_PX + self.panel[1])
 
 
+def _wrap(draw: ImageDraw.ImageDraw, text: str, font, width: float) -> list[str]:
+    """`text` in lines no wider than `width` pixels, broken at spaces (a longer word alone)."""
+    lines: list[str] = []
+    for word in text.split():
+        if lines and draw.textlength(f"{lines[-1]} {word}", font=font) <= width:
+            lines[-1] = f"{lines[-1]} {word}"
+        else:
+            lines.append(word)
+    return lines
+
+
 def _time_text(t: float, duration: float) -> str:
     return f"t = {t:.1f} s" if duration >= 10 else f"t = {t:.2f} s"
 
@@ -493,22 +516,23 @@ class _Renderer:
             x0, y0 = self.layout.origin(k)
             image.paste(self._panel(panel, f), (x0, y0 + LABEL_PX))
             draw.text((x0 + 6, y0 + 2), panel.label, fill=TEXT, font=self.fonts["label"])
-            note, colour = self._note(panel, t)
+            note = self._note(panel, t)
             if note:
-                draw.text(
-                    (x0 + 6, y0 + LABEL_PX + self.layout.panel[1] - 18),
-                    note,
-                    fill=colour,
-                    font=self.fonts["label"],
-                )
+                font = self.fonts["label"]
+                lines = _wrap(draw, note, font, self.layout.panel[0] - 12)[:NOTE_LINES]
+                bottom = y0 + LABEL_PX + self.layout.panel[1]
+                for row, line in enumerate(lines):
+                    top = bottom - 16 * (len(lines) - row) - 2
+                    draw.text((x0 + 6, top), line, fill=DIVERGED, font=font)
         return image
 
-    def _note(self, panel: Panel, t: float) -> tuple[str | None, tuple]:
+    def _note(self, panel: Panel, t: float) -> str | None:
+        """What went wrong with the panel's run, by time t: it failed, or it diverged."""
         if panel.failure is not None:
-            return f"failed: {panel.failure}"[:60], DIVERGED
+            return f"failed: {panel.failure}"
         if panel.diverged_at is not None and t >= panel.diverged_at - 1e-9:
-            return f"diverged at t = {panel.diverged_at:.3g} s", DIVERGED
-        return None, TEXT
+            return f"diverged at t = {panel.diverged_at:.3g} s"
+        return None
 
     def _panel(self, panel: Panel, f: int) -> Image.Image:
         """The panel's drawing area at frame f."""

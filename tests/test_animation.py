@@ -259,6 +259,19 @@ def test_a_diverged_run_is_drawn_up_to_its_last_finite_sample(tmp_path):
     assert not marked(frames[4]) and marked(frames[5]) and marked(frames[-1])
 
 
+def test_a_run_that_flew_off_does_not_set_the_camera(tmp_path):
+    scene = dataclasses.replace(CATALOG["dropped_cube"], duration=1.0)
+    good = run(scene, "reference", "splitting")
+    table = good.table.copy()
+    table.loc[table["t"] > 0.5, "z"] = 1e200  # finite, and far beyond any panel
+    flown = dataclasses.replace(good, table=table)
+    panels = [animation.panel_of(label, t, scene) for label, t in (("a", good), ("b", flown))]
+    alone = animation.scene_extent(scene, panels[:1], None)
+    np.testing.assert_array_equal(animation.scene_extent(scene, panels, None), alone)
+    path = animation.animate(scene, [("flown", flown)], tmp_path / "alone.gif")  # no overflow
+    assert len(_frames(path)) == 51
+
+
 BAD_INPUT = [
     (["animate", "no_such_case", "--out", "a.gif"], "unknown case 'no_such_case'"),
     (["animate", "tumbling_box", "--engines", "warp", "--out", "a.gif"], "unknown engine 'warp'"),
