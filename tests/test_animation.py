@@ -213,13 +213,17 @@ def test_animate_writes_one_panel_per_run_and_one_frame_per_sample(tmp_path):
     # four panels: three in the first row, one in the second, two empty cells
     assert _cells_with_body(frames[0], 3, 2) == [True, True, True, True, False, False]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["box.gif", "cache"]
+    stored = {p: p.stat().st_mtime_ns for p in (tmp_path / "cache").iterdir()}
+    assert len(stored) == len(integrators)
     again = rigidbench(
         "animate", "tumbling_box", "--engines", "reference", "--integrator", *integrators,
         "--duration", "1", "--out", str(tmp_path / "again.gif"), "--cache", str(tmp_path / "cache"),
         cwd=tmp_path,
     )  # fmt: skip
     assert again.returncode == 0, again.stderr
-    assert len(list((tmp_path / "cache").iterdir())) == len(integrators)  # runs came from it
+    # the runs came from the cache: no entry added or rewritten
+    assert {p: p.stat().st_mtime_ns for p in (tmp_path / "cache").iterdir()} == stored
+    assert _frames(tmp_path / "again.gif")[-1].tolist() == frames[-1].tolist()
 
 
 def test_frames_follow_the_samples_and_the_time_axis():
