@@ -4,9 +4,8 @@ one (contact-free scenes, `cases.exact`).
 
 Written as GIF with Pillow (which ships with matplotlib): a GIF plays inline in report.md on
 GitHub and in index.html with no player, script or codec. Frames are drawn directly with
-`PIL.ImageDraw` in a fixed orthographic camera, oblique from above, chosen once per animation
-from the extent of everything drawn: matplotlib's 3D axes take far longer per frame than the
-quick report's budget allows.
+`PIL.ImageDraw` through one fixed camera per animation (`reports.camera`): matplotlib's 3D axes
+take far longer per frame than the quick report's budget allows.
 
 Particles are drawn where `comparators.run_data.particle_tracks` places them: recorded by an
 engine whose bodies deform (the reference's `seed`), else placed rigidly from each sample's pose.
@@ -25,36 +24,26 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from cases.exact import exact_states, exact_trajectory_available
-from cases.scene import Body, Plane, Scene
+from cases.scene import Body, Scene
 from comparators.run_data import particle_tracks
 from comparators.trajectory import Trajectory, atomic_path
+from reports.camera import Camera, camera_for, plane_layer, scene_extent, visible_planes
 from rigidmath.inertia import EQUAL_MOMENTS_RTOL, principal_frame
 from rigidmath.quaternion import quats_to_matrices
 
-# Size: panels of about PANEL_PX x PANEL_PX (their aspect follows the scene's, within
-# ASPECT_RANGE), at most MAX_COLUMNS side by side, at most MAX_FRAMES frames, each a whole
-# number of samples apart. Most of a GIF's bytes are the edges that move, so edges are not
-# antialiased: drawing at twice the size and reducing made tumbling_box's 5 panels 40% larger.
+# Size: panels of about PANEL_PX x PANEL_PX (their aspect follows the scene's within
+# `reports.camera.ASPECT_RANGE`), at most MAX_COLUMNS side by side, at most MAX_FRAMES frames,
+# each a whole number of samples apart. Most of a GIF's bytes are the edges that move, so edges
+# are not antialiased: drawing at twice the size and reducing made tumbling_box's 5 panels 40%
+# larger.
 PANEL_PX = 240
-ASPECT_RANGE = (0.6, 1.7)
 MAX_COLUMNS = 3
 MAX_FRAMES = 81
 LOOP_S = 8.0  # a loop plays in about this long, each frame FRAME_MS_RANGE ms
 FRAME_MS_RANGE = (60, 200)
 LAST_FRAME_MS = 1500  # a pause on the final state before the loop starts again
-HEADER_PX, LABEL_PX, MARGIN_PX = 24, 18, 10
+HEADER_PX, LABEL_PX = 24, 18
 NOTE_LINES = 3  # a failed run's reason, at most this many lines at the foot of its panel
-# The camera looks down at ELEVATION_DEG from the horizontal (up is against gravity, z without
-# gravity), from AZIMUTH_DEG about the up axis: the floor is seen from above, a box's three
-# faces at once.
-ELEVATION_DEG, AZIMUTH_DEG = 24.0, -55.0
-# Space around the run's extent, as a fraction of its largest side: planes show as a floor
-# around the bodies, not an edge under them.
-PAD_FRACTION = 0.12
-# The camera leaves out runs that flew off (`scene_extent`): a diverging run's extent grows by
-# orders of magnitude, a sound run's stays within a few times another's.
-FLY_OFF_FACTOR = 10.0
-MAX_REACH = 1000.0
 # Particles are joined by bonds (`bonds`): the shape reads at a glance, and a deforming body's
 # bonds show it deform. A particle on a bond's ball, to rounding of metre-scale coordinates,
 # blocks it; clusters past MAX_BONDED_PARTICLES would be a tangle of lines.
@@ -67,9 +56,6 @@ BACKGROUND = (255, 255, 255)
 TEXT = (30, 30, 30)
 DIVERGED = (200, 30, 30)
 GHOST = (90, 90, 90)
-PLANE_FILL = (150, 170, 200, 70)
-PLANE_GRID = (110, 130, 165, 110)
-PLANE_EDGE = (90, 110, 150, 170)
 BODY_COLOURS = (
     (31, 119, 180),
     (255, 127, 14),
@@ -134,216 +120,6 @@ def ghost_tracks(scene: Scene, times: np.ndarray) -> list[np.ndarray] | None:
 def _sample_index(times: np.ndarray, t: float) -> int:
     """The sample shown at time t: the last one at or before it (to within rounding of t)."""
     return max(0, int(np.searchsorted(times, t + 1e-9 * max(1.0, t), side="right")) - 1)
-
-
-# ---- the camera ------------------------------------------------------------------------------
-
-
-def _box(points: np.ndarray) -> np.ndarray | None:
-    """(2, 3) lower and upper corners of the finite rows of `points` (..., 3); None: none."""
-    flat = points.reshape(-1, 3)
-    flat = flat[np.isfinite(flat).all(axis=1)]
-    return None if len(flat) == 0 else np.array([flat.min(axis=0), flat.max(axis=0)])
-
-
-def _size(box: np.ndarray) -> float:
-    return float(np.max(box[1] - box[0]))
-
-
-def scene_extent(scene: Scene, panels: Sequence[Panel], ghost) -> np.ndarray:
-    """(2, 3) the box the camera frames: every particle of every run over its drawn samples,
-    runs that flew off aside, padded by PAD_FRACTION.
-
-    A run has flown off when its extent is over FLY_OFF_FACTOR times the smallest run's (or the
-    scene's at t = 0, or the exact motion's, if larger): every other panel would shrink to a
-    dot. It is drawn clipped to its panel. Nothing is framed beyond MAX_REACH times the scene's
-    size at t = 0 from where it starts (a lone run that flew off).
-    """
-    start = _box(np.concatenate([b.positions for b in scene.bodies]))
-    floor = [start] + ([_box(np.concatenate(ghost, axis=1))] if ghost is not None else [])
-    runs = [_box(np.concatenate(p.tracks, axis=1)) for p in panels if p.tracks]
-    runs = [b for b in runs if b is not None]
-    reference = max([_size(b) for b in floor] + [min(map(_size, runs), default=0.0)])
-    kept = [b for b in runs + floor if _size(b) <= FLY_OFF_FACTOR * reference]
-    lower = np.min([b[0] for b in kept], axis=0)
-    upper = np.max([b[1] for b in kept], axis=0)
-    centre, reach = start.mean(axis=0), MAX_REACH * max(_size(start), 1e-9)
-    lower, upper = np.maximum(lower, centre - reach), np.minimum(upper, centre + reach)
-    radius = max(b.particle_radius for b in scene.bodies)
-    pad = radius + PAD_FRACTION * max(float(np.max(upper - lower)), 2 * radius)
-    return np.array([lower - pad, upper + pad])
-
-
-def _up(scene: Scene) -> np.ndarray:
-    g = np.asarray(scene.gravity, dtype=float)
-    return -g / np.linalg.norm(g) if np.any(g) else np.array([0.0, 0.0, 1.0])
-
-
-@dataclass(frozen=True)
-class Camera:
-    """An orthographic camera: world points to panel pixels (x right, y down) and depth.
-
-    Attributes:
-      right, up, toward: (3,) screen right, screen up and the direction to the camera.
-      centre: (2,) the world's screen coordinates (m) drawn at the panel's centre.
-      scale: pixels per metre.  size: (width, height) of the drawing area in pixels.
-    """
-
-    right: np.ndarray
-    up: np.ndarray
-    toward: np.ndarray
-    centre: np.ndarray
-    scale: float
-    size: tuple[int, int]
-
-    def screen(self, points: np.ndarray) -> np.ndarray:
-        """(..., 2) screen coordinates (m) of world points (..., 3)."""
-        return np.stack([points @ self.right, points @ self.up], axis=-1)
-
-    def pixels(self, points: np.ndarray) -> np.ndarray:
-        """(..., 2) pixel coordinates of world points (..., 3)."""
-        s = (self.screen(points) - self.centre) * self.scale
-        return np.stack([self.size[0] / 2 + s[..., 0], self.size[1] / 2 - s[..., 1]], axis=-1)
-
-    def depth(self, points: np.ndarray) -> np.ndarray:
-        """(...,) distance towards the camera: larger is nearer."""
-        return points @ self.toward
-
-
-def camera_for(scene: Scene, extent: np.ndarray, planes: list[np.ndarray], area_px: int) -> Camera:
-    """The camera framing `extent` (2, 3) and the clipped `planes` (their polygons) in a panel
-    of about `area_px` squared pixels whose aspect follows the framed scene."""
-    up = _up(scene)
-    helper = np.eye(3)[np.argmin(np.abs(up))]  # x when up is z
-    east = helper - (helper @ up) * up
-    east /= np.linalg.norm(east)
-    north = np.cross(up, east)
-    el, az = math.radians(ELEVATION_DEG), math.radians(AZIMUTH_DEG)
-    toward = math.cos(el) * (math.cos(az) * east + math.sin(az) * north) + math.sin(el) * up
-    right = np.cross(up, toward)
-    right /= np.linalg.norm(right)
-    screen_up = np.cross(toward, right)
-    corners = np.array(
-        [[extent[i][0], extent[j][1], extent[k][2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)]
-    )
-    points = np.concatenate([corners, *planes]) if planes else corners
-    flat = np.stack([points @ right, points @ screen_up], axis=-1)
-    low, high = flat.min(axis=0), flat.max(axis=0)
-    span = np.maximum(high - low, 1e-9)
-    aspect = float(np.clip(span[0] / span[1], *ASPECT_RANGE))
-    size = (round(area_px * math.sqrt(aspect)), round(area_px / math.sqrt(aspect)))
-    scale = min(
-        (size[0] - 2 * MARGIN_PX) / span[0],
-        (size[1] - 2 * MARGIN_PX) / span[1],
-    )
-    return Camera(right, screen_up, toward, (low + high) / 2, scale, size)
-
-
-# ---- planes ----------------------------------------------------------------------------------
-
-
-def _tangents(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    helper = np.eye(3)[np.argmin(np.abs(normal))]
-    t1 = np.cross(normal, helper)
-    t1 /= np.linalg.norm(t1)
-    return t1, np.cross(normal, t1)
-
-
-def clip_plane(plane: Plane, extent: np.ndarray) -> np.ndarray | None:
-    """(k, 3) the convex polygon where `plane` crosses the box `extent` (2, 3), vertices in
-    order around it; None when it misses the box."""
-    n, p0 = plane.unit_normal, np.asarray(plane.point, dtype=float)
-    corners = np.array(
-        [[extent[i][0], extent[j][1], extent[k][2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)]
-    )
-    side = (corners - p0) @ n
-    points = []
-    for a in range(8):
-        for b in range(a + 1, 8):
-            if bin(a ^ b).count("1") != 1:  # not an edge of the box
-                continue
-            if side[a] * side[b] < 0:
-                w = side[a] / (side[a] - side[b])
-                points.append(corners[a] + w * (corners[b] - corners[a]))
-    points += [c for c, s in zip(corners, side, strict=True) if s == 0]
-    if len(points) < 3:
-        return None
-    points = np.array(points)
-    t1, t2 = _tangents(n)
-    rel = points - points.mean(axis=0)
-    return points[np.argsort(np.arctan2(rel @ t2, rel @ t1))]
-
-
-def clip_to_free_side(polygon: np.ndarray, plane: Plane) -> np.ndarray | None:
-    """The part of the convex `polygon` (k, 3) on `plane`'s free side (Sutherland-Hodgman);
-    None when nothing is left."""
-    n, p0 = plane.unit_normal, np.asarray(plane.point, dtype=float)
-    side = (polygon - p0) @ n
-    kept = []
-    ends, end_sides = np.roll(polygon, -1, axis=0), np.roll(side, -1)
-    for a, b, sa, sb in zip(polygon, ends, side, end_sides, strict=True):
-        if sa >= 0:
-            kept.append(a)
-        if sa * sb < 0:
-            kept.append(a + sa / (sa - sb) * (b - a))
-    return np.array(kept) if len(kept) >= 3 else None
-
-
-def visible_planes(scene: Scene, extent: np.ndarray) -> list[tuple[Plane, np.ndarray]]:
-    """Each plane of the scene with the polygon drawn for it: where it crosses the box
-    `extent` on the free side of every other plane (a wall stands on the floor, and the floor
-    ends at the wall). Planes act only with contact."""
-    planes = scene.planes if scene.contact is not None else ()
-    shown = []
-    for plane in planes:
-        polygon = clip_plane(plane, extent)
-        for other in planes:
-            if polygon is not None and other is not plane:
-                polygon = clip_to_free_side(polygon, other)
-        if polygon is not None:
-            shown.append((plane, polygon))
-    return shown
-
-
-def _grid_step(span: float) -> float:
-    """A round spacing (1, 2 or 5 times a power of ten) giving about 8 lines over `span`."""
-    raw = span / 8
-    power = 10 ** math.floor(math.log10(raw))
-    return next(f * power for f in (1, 2, 5, 10) if f * power >= raw)
-
-
-def _grid_lines(plane: Plane, polygon: np.ndarray) -> list[np.ndarray]:
-    """(2, 3) segments of a square grid on `plane`, clipped to its convex `polygon`."""
-    p0 = np.asarray(plane.point, dtype=float)
-    t1, t2 = _tangents(plane.unit_normal)
-    uv = np.stack([(polygon - p0) @ t1, (polygon - p0) @ t2], axis=-1)
-    step = _grid_step(float(np.max(uv.max(axis=0) - uv.min(axis=0))))
-    segments = []
-    for axis, (along, across) in enumerate(((t1, t2), (t2, t1))):
-        for c in (
-            np.arange(math.ceil(uv[:, axis].min() / step), math.floor(uv[:, axis].max() / step) + 1)
-            * step
-        ):
-            hits = []
-            for a, b in zip(uv, np.roll(uv, -1, axis=0), strict=True):
-                if (a[axis] - c) * (b[axis] - c) < 0:
-                    w = (c - a[axis]) / (b[axis] - a[axis])
-                    hits.append(a[1 - axis] + w * (b[1 - axis] - a[1 - axis]))
-            if len(hits) == 2:
-                segments.append(np.array([p0 + c * along + h * across for h in hits]))
-    return segments
-
-
-def _plane_layer(camera: Camera, plane: Plane, polygon: np.ndarray) -> Image.Image:
-    """A transparent layer with the plane drawn: a light translucent fill, a grid and its edge."""
-    layer = Image.new("RGBA", camera.size, (0, 0, 0, 0))
-    draw = ImageDraw.Draw(layer)
-    outline = [tuple(p) for p in camera.pixels(polygon)]
-    draw.polygon(outline, fill=PLANE_FILL)
-    for segment in _grid_lines(plane, polygon):
-        draw.line([tuple(p) for p in camera.pixels(segment)], fill=PLANE_GRID, width=1)
-    draw.line([*outline, outline[0]], fill=PLANE_EDGE, width=1)
-    return layer
 
 
 # ---- bodies ----------------------------------------------------------------------------------
@@ -479,7 +255,7 @@ class _Renderer:
 
     def __init__(self, scene: Scene, panels: Sequence[Panel], ghost, times: np.ndarray):
         self.scene, self.panels, self.ghost, self.times = scene, panels, ghost, times
-        extent = scene_extent(scene, panels, ghost)
+        extent = scene_extent(scene, [p.tracks for p in panels], ghost)
         clipped = visible_planes(scene, extent)
         self.camera = camera_for(scene, extent, [poly for _, poly in clipped], PANEL_PX)
         columns = min(MAX_COLUMNS, len(panels))
@@ -489,7 +265,7 @@ class _Renderer:
         self.back = Image.new("RGBA", self.camera.size, BACKGROUND + (255,))
         self.front = Image.new("RGBA", self.camera.size, (0, 0, 0, 0))
         for plane, polygon in clipped:
-            layer = _plane_layer(self.camera, plane, polygon)
+            layer = plane_layer(self.camera, plane, polygon)
             if plane.unit_normal @ self.camera.toward >= 0:
                 self.back.alpha_composite(layer)
             else:

@@ -20,6 +20,7 @@ from comparators.run_data import RunData, particle_tracks
 from reference_sim.model import seed_initial_state
 from reference_sim.seed import seed_step
 from reports import animation
+from reports.camera import scene_extent
 from reports.figures import ANIMATED_CASES, animated_runs
 from reports.html_page import missing_references
 from reports.report import write_report
@@ -269,9 +270,8 @@ def test_a_run_that_flew_off_does_not_set_the_camera(tmp_path):
     table = good.table.copy()
     table.loc[table["t"] > 0.5, "z"] = 1e200  # finite, and far beyond any panel
     flown = dataclasses.replace(good, table=table)
-    panels = [animation.panel_of(label, t, scene) for label, t in (("a", good), ("b", flown))]
-    alone = animation.scene_extent(scene, panels[:1], None)
-    np.testing.assert_array_equal(animation.scene_extent(scene, panels, None), alone)
+    runs = [particle_tracks(t, scene) for t in (good, flown)]
+    np.testing.assert_array_equal(scene_extent(scene, runs), scene_extent(scene, runs[:1]))
     path = animation.animate(scene, [("flown", flown)], tmp_path / "alone.gif")  # no overflow
     assert len(_frames(path)) == 51
 
