@@ -11,7 +11,7 @@ import pandas as pd
 from comparators.sweep import SweepResult
 from reports import plots, texts
 from reports.convergence import ERROR_FLOOR_DEG, lowest_front
-from reports.sections.layout import case_figure, subsection
+from reports.sections.layout import case_figure, case_title, folded, subsection
 from reports.sections.outcomes import case_outcomes
 from reports.tables import EMPTY_CELL, escape_markdown, format_number, markdown_table
 
@@ -34,6 +34,8 @@ METRIC_HEADERS = {
     "solver_extrapolations": "extrapolations per solve",
     "verdict": "verdict",
 }
+# what a case's folded detail holds
+CASE_DETAIL = "Metrics, drift, convergence in dt, work-precision, stability map, outcomes"
 # columns dropped when all NaN
 SHOWN_WHERE_MEASURED = (
     "rest_com_height",
@@ -101,6 +103,22 @@ def _smallest_error(data: pd.DataFrame) -> str:
     return smallest
 
 
+def _lowest(data: pd.DataFrame) -> pd.DataFrame:
+    """`lowest_front` by engine of valid runs' orientation error against stepping time."""
+    return lowest_front(data, plots.COST, plots.ERROR, "engine", ERROR_FLOOR_DEG)
+
+
+def front_leader(runs: pd.DataFrame) -> tuple[str, int, int] | None:
+    """(engine, budgets it is lowest at, budgets) of the engine most accurate at equal cost
+    (`pareto_sentence`), None when fewer than two engines have valid runs with an error."""
+    data = plots.valid_costs(runs)
+    if data.empty or data["engine"].nunique() < 2:
+        return None
+    lowest = _lowest(data)
+    counts = lowest.sum().sort_values(ascending=False, kind="stable")
+    return counts.index[0], int(counts.iloc[0]), len(lowest)
+
+
 def pareto_sentence(runs: pd.DataFrame) -> str:
     """Which engine holds the lowest work-precision front most often, and the smallest error."""
     data = plots.valid_costs(runs)
@@ -109,7 +127,7 @@ def pareto_sentence(runs: pd.DataFrame) -> str:
     smallest = _smallest_error(data)
     if data["engine"].nunique() == 1:
         return f"Only {data['engine'].iloc[0]} has valid runs with an error here. {smallest}"
-    lowest = lowest_front(data, plots.COST, plots.ERROR, "engine", ERROR_FLOOR_DEG)
+    lowest = _lowest(data)
     counts = lowest.sum().sort_values(ascending=False, kind="stable")
     leader = counts.index[0]
     tied = lowest[lowest[leader] & (lowest.sum(axis=1) > 1)]
@@ -130,7 +148,7 @@ def _intro(result: SweepResult, case: str) -> list[str]:
     scene = result.scenes[case]
     reference = result.references.get(case, EMPTY_CELL)
     lines = [
-        f"## Case `{case}`",
+        f"## {case_title(case)}",
         "",
         f"{escape_markdown(scene.description)} Modelled: {escape_markdown(scene.modelled())}. "
         f"Errors against: {escape_markdown(reference)}.",
@@ -156,8 +174,7 @@ def case_section(
     work_precision = case_figure(figures, case, "work_precision", out, wp_alt)
     stability = case_figure(figures, case, "stability", out, "stability map")
     fit_table = _fit_table(fits[fits["case"] == case])
-    return [
-        *_intro(result, case),
+    detail = [
         *subsection("Metrics", texts.METRICS + solver, _metrics_table(runs)),
         *subsection("Drift over time", texts.DRIFT, drift),
         *subsection("Convergence in dt", texts.CONVERGENCE + contact, errors, fit_table),
@@ -165,3 +182,4 @@ def case_section(
         *subsection("Stability map", texts.STABILITY_MAP, stability),
         *case_outcomes(result, case),
     ]
+    return [*_intro(result, case), *folded(CASE_DETAIL, detail)]
