@@ -14,7 +14,7 @@ import markdown
 from reports.plots import VERDICT_COLOURS
 
 CSS = """
-body { font-family: system-ui, sans-serif; max-width: 60rem; margin: 2rem auto; padding: 0 1rem;
+body { font-family: system-ui, sans-serif; max-width: 76rem; margin: 2rem auto; padding: 0 1rem;
        line-height: 1.45; color: #222; }
 table { border-collapse: collapse; margin: 0.8rem 0; font-size: 0.9rem; display: block;
         overflow-x: auto; }

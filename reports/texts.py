@@ -23,12 +23,15 @@ def data_files(scaling: bool) -> str:
 
 
 SUMMARY = (
-    "How to read: per case (rows, each linked to its section) and engine (columns), the "
-    "verdict of every integrator at the case's default dt: ok, diverged (a non-finite state or "
-    "energy blown up), tunnelled (a body passed through a plane), jitter (a body that should "
-    "rest still moves) or failed (no run); where an engine's integrators differ, each verdict "
-    "names its integrators. Last column: the engine with the smallest orientation error at "
-    "the most time budgets of the case's work-precision plot (at how many, of how many)."
+    "Each case (linked to its section) by engine: the verdict of every integrator at the "
+    "case's default dt, and the engine most accurate at equal cost."
+)
+SUMMARY_LEGEND = (
+    "How to read: ok; diverged (a non-finite state or energy blown up); tunnelled (a body "
+    "passed through a plane); jitter (a body that should rest still moves); failed (no run). "
+    "Where an engine's integrators differ, each verdict names its integrators. Most accurate at "
+    "equal cost: the engine with the smallest orientation error at the most time budgets of "
+    "the case's work-precision plot (at how many, of how many)."
 )
 SUMMARY_OUTCOMES = (
     "How to read: per case, the closed-form outcome that says most about it, and what each "

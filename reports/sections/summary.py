@@ -124,7 +124,7 @@ def summary_section(result: SweepResult, fits: pd.DataFrame) -> list[str]:
     """The summary: verdicts, closed forms, findings."""
     verdicts = verdict_table(result)
     as_is = {c: str for c in verdicts.columns}
-    lines = section("Summary", texts.SUMMARY, markdown_table(verdicts, as_is))
+    lines = section("Summary", texts.SUMMARY, markdown_table(verdicts, as_is), texts.SUMMARY_LEGEND)
     outcomes = outcome_table(result)
     if len(outcomes):
         table = markdown_table(outcomes, {c: str for c in outcomes.columns})
