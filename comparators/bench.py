@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from cases.errors import InputError
@@ -139,6 +140,7 @@ def bench(
     duration: float | None = None,
     repeats: int = BENCH_REPEATS,
     progress: bool = True,
+    console: Console | None = None,
 ) -> pd.DataFrame:
     """Steps/s of every scene x engine x integrator x dt, one row each, columns BENCH_COLUMNS.
 
@@ -149,6 +151,9 @@ def bench(
     warm-up gave a finite, non-diverged run. A failed or diverged run never raises: its row has
     steps/s NaN and says why in `verdict`; a repeat that fails turns its row into that failure.
     Call `comparators.sweep.warm_up` first to compile the reference simulator outside the bench.
+    The progress bar goes to `console` (default: rich's, on `sys.stdout`); runs in this process
+    capture their output (`comparators.engine_output`), so give a console that writes past it
+    (`terminal_stream`), or the bar's refreshes during a run land in that run's record.
     """
     if repeats < MIN_REPEATS:
         raise InputError(f"repeats: expected at least {MIN_REPEATS}, got {repeats}")
@@ -161,7 +166,7 @@ def bench(
         MofNCompleteColumn(),
         TimeElapsedColumn(),
     ]
-    with Progress(*columns, disable=not progress, transient=False) as bar:
+    with Progress(*columns, console=console, disable=not progress, transient=False) as bar:
         task = bar.add_task("bench", total=total)
 
         def advance(label: str) -> None:
