@@ -28,6 +28,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from cases.errors import InputError
 from cases.scene import Scene
 from comparators.engine import ENGINES, get_engine, unsupported
+from comparators.engine_output import message_count
 from comparators.timing import BENCH_REPEATS, MIN_REPEATS, attempt_run, interleaved, spread
 from comparators.verdict import verdict
 
@@ -44,6 +45,7 @@ BENCH_COLUMNS = [
     "steps_per_s_max",
     "setup_s",  # model building (and compilation) of the warm-up run
     "ratio_vs_mujoco_euler",
+    "engine_messages",  # lines the engine printed or warned in the warm-up run (RunMeta.messages)
     "verdict",  # of the warm-up run: "ok", "diverged", ... or "failed: <reason>"
 ]
 # Every steps/s is compared with MuJoCo's Euler at the same case and dt.
@@ -219,6 +221,7 @@ def _warm_up_block(block: list[BenchRun], rows: list[dict], advance) -> list[int
             rows[k]["verdict"] = f"failed: {error}"
             continue
         rows[k].update(steps=traj.meta.steps, setup_s=traj.meta.setup_s)
+        rows[k]["engine_messages"] = message_count(traj.meta.messages)
         rows[k]["verdict"] = verdict(traj, spec.scene)
         if rows[k]["verdict"] in TIMED_VERDICTS:
             timed.append(k)
@@ -260,6 +263,7 @@ def throughput_from_results(results: pd.DataFrame, scenes: dict[str, Scene]) -> 
             "steps_per_s_max": np.where(valid, steps / runs["wall_min_s"], np.nan),
             "setup_s": runs["setup_s"],
             "ratio_vs_mujoco_euler": np.nan,
+            "engine_messages": runs["engine_messages"],
             "verdict": runs["verdict"],
         },
         columns=BENCH_COLUMNS,

@@ -80,9 +80,11 @@ THROUGHPUT_HEADERS = ("case", "engine", "integrator", "dt", "steps/s [min, max]"
 
 
 def _throughput_console_table(table, title: str) -> Table:
-    """The bench table for the terminal: steps/s median [min, max], the ratio, the verdict."""
+    """The bench table for the terminal: steps/s median [min, max], the ratio, the lines the
+    engine printed or warned (where any did), the verdict."""
+    said = bool((table["engine_messages"].fillna(0) > 0).any())
     shown = Table(title=title)
-    for col in THROUGHPUT_HEADERS:
+    for col in THROUGHPUT_HEADERS + (("messages",) if said else ()):
         shown.add_column(
             col, justify="left" if col in ("case", "engine", "integrator") else "right"
         )
@@ -92,8 +94,10 @@ def _throughput_console_table(table, title: str) -> Table:
         if not math.isnan(row.steps_per_s):
             rate += f" [{_format_rate(row.steps_per_s_min)}, {_format_rate(row.steps_per_s_max)}]"
         ratio = _format_rate(row.ratio_vs_mujoco_euler)
-        cells = (row.case, row.engine, row.integrator, f"{row.dt:g}", rate, ratio, row.verdict)
-        shown.add_row(*map(Text, cells))
+        cells = [row.case, row.engine, row.integrator, f"{row.dt:g}", rate, ratio]
+        if said:
+            cells.append(_format_metric(row.engine_messages))
+        shown.add_row(*map(Text, [*cells, row.verdict]))
     return shown
 
 
