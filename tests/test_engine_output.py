@@ -18,6 +18,7 @@ from comparators.engine_output import (
     OTHER_MESSAGES,
     captured_output,
     summary,
+    terminal_stream,
 )
 from comparators.timing import attempt_run
 
@@ -59,6 +60,18 @@ def test_the_descriptors_are_restored_after_the_block_also_when_it_raises(capfd)
     terminal = capfd.readouterr()
     assert output.messages == {"before the error": 1}
     assert terminal.err == "after the block\n" and terminal.out == "printed after\n"
+
+
+def test_the_terminal_stream_writes_past_a_capture(capfd):
+    """What a progress bar refreshed from a thread during a run writes stays on the terminal
+    and out of the run's record."""
+    terminal = terminal_stream()
+    with captured_output() as output:
+        terminal.write("progress 3/10\n")
+        os.write(2, b"engine says\n")
+    terminal.close()
+    assert output.messages == {"engine says": 1}
+    assert capfd.readouterr().out == "progress 3/10\n"
 
 
 def test_messages_are_capped_in_number_and_length():
