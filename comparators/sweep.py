@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from rich.console import Console
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
@@ -73,6 +74,8 @@ RESULT_COLUMNS = [
     "shape_error",  # seed only, else NaN
     "rest_com_height",  # where the case predicts rest, else NaN
     "rest_height_error",
+    "engine_messages",  # lines the engine printed or warned during the run (RunMeta.messages)
+    "first_engine_message",  # the first of them, else NaN
     "verdict",  # "ok", "diverged", "tunnelled", "jitter" (comparators.verdict), "failed: ..."
     "engine_version",
     "code_version",
@@ -304,9 +307,11 @@ def run_sweep(
     executor,
     progress: bool = True,
     left_out: list[str] | None = None,
+    console: Console | None = None,
 ) -> SweepResult:
     """Run every spec not already in `cache`, store each trajectory as it arrives, and
-    assemble the results table; `left_out` lines pass through to the result."""
+    assemble the results table; `left_out` lines pass through to the result. The progress bar
+    goes to `console` (default: rich's, on `sys.stdout`)."""
     start = time.perf_counter()
     keys = {
         spec: run_key(spec.scene, spec.engine, spec.integrator, spec.dt, spec.repeats)
@@ -330,7 +335,8 @@ def run_sweep(
         TextColumn("eta"),
         TimeRemainingColumn(),
     ]
-    with Progress(*columns, disable=not progress or not todo, transient=False) as bar:
+    show = progress and bool(todo)
+    with Progress(*columns, console=console, disable=not show, transient=False) as bar:
         task = bar.add_task(f"{len(todo)} runs ({len(specs) - len(todo)} cached)", total=len(todo))
         for spec, (traj, error, analysis) in executor.map_unordered(execute, todo):
             if traj is None:

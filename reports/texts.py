@@ -92,6 +92,11 @@ SOLVER_NOTE = (
     "per solve (a direct solve of the contacts that push, each costing more than a sweep) and "
     "its extrapolations per solve (a jump along the sweeps' steady rate of convergence)."
 )
+MESSAGES_NOTE = (
+    " Engine messages are what an engine printed or warned while it ran (lines, and the first "
+    "of them; every one is in its trajectory's record): they stand beside the verdict, which "
+    "is measured from the states alone."
+)
 DRIFT = (
     "How to read: relative error of total energy and angular momentum against time at the "
     "case's default dt (or the closest swept); a bounded wobble is what a symplectic "

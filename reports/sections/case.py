@@ -32,6 +32,7 @@ METRIC_HEADERS = {
     "solver_at_limit": "solves stopped unconverged",
     "solver_subspace": "subspace steps per solve",
     "solver_extrapolations": "extrapolations per solve",
+    "engine_messages": "engine messages",
     "verdict": "verdict",
 }
 # what a case's folded detail holds
@@ -47,6 +48,25 @@ SHOWN_WHERE_MEASURED = (
 )
 
 
+# Characters of an engine's first message shown in a cell (the results table has it whole).
+MESSAGE_CELL_CHARS = 80
+
+
+def any_engine_messages(runs: pd.DataFrame) -> bool:
+    """True when an engine printed or warned something in some run of `runs`."""
+    return bool((runs["engine_messages"].fillna(0) > 0).any())
+
+
+def _messages_cell(row) -> str:
+    """ "N: the first message" (shortened), or EMPTY_CELL when the engine said nothing."""
+    if not row.engine_messages > 0:  # also NaN: a failed run, whose verdict says it all
+        return EMPTY_CELL
+    first = str(row.first_engine_message)
+    if len(first) > MESSAGE_CELL_CHARS:
+        first = first[: MESSAGE_CELL_CHARS - 1] + "…"
+    return f"{int(row.engine_messages)}: {first}"
+
+
 def _metrics_table(runs: pd.DataFrame) -> str:
     """One row per run, grouped by engine/integrator, largest dt first."""
     headers = {
@@ -54,10 +74,13 @@ def _metrics_table(runs: pd.DataFrame) -> str:
         for col, head in METRIC_HEADERS.items()
         if col not in SHOWN_WHERE_MEASURED or runs[col].notna().any()
     }
+    if not any_engine_messages(runs):
+        del headers["engine_messages"]
     pairs = list(zip(runs["engine"], runs["integrator"], strict=True))
     rank = {pair: k for k, pair in enumerate(dict.fromkeys(pairs))}
     table = runs.assign(_pair=[rank[p] for p in pairs])
     table = table.sort_values(["_pair", "dt"], ascending=[True, False], kind="stable")
+    table["engine_messages"] = [_messages_cell(r) for r in table.itertuples()]
     return markdown_table(table[list(headers)].rename(columns=headers))
 
 
@@ -167,6 +190,7 @@ def case_section(
     if runs.empty:
         return [*_intro(result, case), "", "No runs."]
     solver = texts.SOLVER_NOTE if runs["solver_sweeps"].notna().any() else ""
+    solver += texts.MESSAGES_NOTE if any_engine_messages(runs) else ""
     contact = texts.CONTACT_ORDER_NOTE if scene.has_contact else ""
     drift = case_figure(figures, case, "drift", out, "energy and angular momentum drift")
     errors = case_figure(figures, case, "convergence", out, "orientation error against dt")
