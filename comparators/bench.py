@@ -22,11 +22,13 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from cases.errors import InputError
 from cases.scene import Scene
 from comparators.engine import ENGINES, get_engine, unsupported
+from comparators.engine_output import message_count
 from comparators.timing import BENCH_REPEATS, MIN_REPEATS, attempt_run, interleaved, spread
 from comparators.verdict import verdict
 
@@ -43,6 +45,7 @@ BENCH_COLUMNS = [
     "steps_per_s_max",
     "setup_s",  # model building (and compilation) of the warm-up run
     "ratio_vs_mujoco_euler",
+    "engine_messages",  # lines the engine printed or warned in the warm-up run (RunMeta.messages)
     "verdict",  # of the warm-up run: "ok", "diverged", ... or "failed: <reason>"
 ]
 # Every steps/s is compared with MuJoCo's Euler at the same case and dt.
@@ -139,6 +142,7 @@ def bench(
     duration: float | None = None,
     repeats: int = BENCH_REPEATS,
     progress: bool = True,
+    console: Console | None = None,
 ) -> pd.DataFrame:
     """Steps/s of every scene x engine x integrator x dt, one row each, columns BENCH_COLUMNS.
 
@@ -149,6 +153,9 @@ def bench(
     warm-up gave a finite, non-diverged run. A failed or diverged run never raises: its row has
     steps/s NaN and says why in `verdict`; a repeat that fails turns its row into that failure.
     Call `comparators.sweep.warm_up` first to compile the reference simulator outside the bench.
+    The progress bar goes to `console` (default: rich's, on `sys.stdout`); runs in this process
+    capture their output (`comparators.engine_output`), so give a console that writes past it
+    (`terminal_stream`), or the bar's refreshes during a run land in that run's record.
     """
     if repeats < MIN_REPEATS:
         raise InputError(f"repeats: expected at least {MIN_REPEATS}, got {repeats}")
@@ -161,7 +168,7 @@ def bench(
         MofNCompleteColumn(),
         TimeElapsedColumn(),
     ]
-    with Progress(*columns, disable=not progress, transient=False) as bar:
+    with Progress(*columns, console=console, disable=not progress, transient=False) as bar:
         task = bar.add_task("bench", total=total)
 
         def advance(label: str) -> None:
@@ -214,6 +221,7 @@ def _warm_up_block(block: list[BenchRun], rows: list[dict], advance) -> list[int
             rows[k]["verdict"] = f"failed: {error}"
             continue
         rows[k].update(steps=traj.meta.steps, setup_s=traj.meta.setup_s)
+        rows[k]["engine_messages"] = message_count(traj.meta.messages)
         rows[k]["verdict"] = verdict(traj, spec.scene)
         if rows[k]["verdict"] in TIMED_VERDICTS:
             timed.append(k)
@@ -255,6 +263,7 @@ def throughput_from_results(results: pd.DataFrame, scenes: dict[str, Scene]) -> 
             "steps_per_s_max": np.where(valid, steps / runs["wall_min_s"], np.nan),
             "setup_s": runs["setup_s"],
             "ratio_vs_mujoco_euler": np.nan,
+            "engine_messages": runs["engine_messages"],
             "verdict": runs["verdict"],
         },
         columns=BENCH_COLUMNS,

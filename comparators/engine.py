@@ -6,12 +6,14 @@ first imported. A plugin that fails to load is registered as an `UnloadableEngin
 its reason, never run, and never in the way of the others.
 """
 
+import dataclasses
 import math
 from importlib import metadata
 from typing import Protocol
 
 from cases.errors import InputError
 from cases.scene import Scene
+from comparators.engine_output import NOTE_PREFIX, captured_output
 from comparators.parity import ParityError, check_parity
 from comparators.trajectory import COLUMNS, Trajectory
 
@@ -81,10 +83,14 @@ class UnloadableEngine:
 
 
 def failure_reason(exc: Exception) -> str:
-    """One line saying why a run failed, for tables that report failures instead of raising."""
+    """One line saying why a run failed, for tables that report failures instead of raising,
+    followed by what the engine said before it failed (`run`'s note), where it said anything."""
     if isinstance(exc, ParityError):
-        return f"parity: {exc}"
-    return f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
+        reason = f"parity: {exc}"
+    else:
+        reason = f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
+    said = [n for n in getattr(exc, "__notes__", ()) if n.startswith(NOTE_PREFIX)]
+    return "; ".join([reason, *said])
 
 
 def register(engine: Engine) -> Engine:
@@ -167,6 +173,11 @@ def run(
     or duration raise `InputError`; a result that is not the trajectory table of the scene's
     bodies raises `ContractError`, and a model that differs from the scene at t = 0
     `comparators.parity.ParityError`.
+
+    What the engine prints or warns while it runs is captured
+    (`comparators.engine_output.captured_output`, around the engine's whole run, so outside its
+    timed regions) into the trajectory's `RunMeta.messages`; when the run raises, into a note
+    on the exception, which `failure_reason` keeps.
     """
     eng = get_engine(engine)
     if eng.missing:
@@ -187,9 +198,18 @@ def run(
             raise InputError(f"{key}: expected a finite number > 0, got {value!r}")
     if dt > duration:
         raise InputError(f"dt {dt} is longer than duration {duration}: expected dt <= duration")
-    traj = eng.run(scene, integrator, float(dt), float(duration))
-    check_contract(scene, engine, traj)
-    check_parity(scene, traj.meta)
+    output = None
+    try:
+        with captured_output() as output:
+            traj = eng.run(scene, integrator, float(dt), float(duration))
+        check_contract(scene, engine, traj)
+        said = {**traj.meta.messages, **output.messages}
+        traj = dataclasses.replace(traj, meta=dataclasses.replace(traj.meta, messages=said))
+        check_parity(scene, traj.meta)
+    except Exception as exc:
+        if output is not None and output.messages:
+            exc.add_note(output.note())
+        raise
     return traj
 
 

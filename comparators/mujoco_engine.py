@@ -7,6 +7,7 @@ gravity, gravity off) and skips the pipeline stages no scene acts on. Restitutio
 MuJoCo parameter: `contact_parameters` maps the scene's e to a linear spring-damper (solref,
 flat solimp) at MuJoCo's stiffest timeconst. Stepping goes through `mujoco.rollout` in chunks,
 with MuJoCo's profiling timer off (process-global); a divergence ends the samples in NaN.
+MuJoCo's warnings go to stderr (`warnings_to_stderr`), where every run's capture records them.
 
 The mapping, its rebound table across dt, the stepping path and what was measured:
 docs/engines/mujoco.md.
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import ctypes
 import math
+import sys
 from contextlib import contextmanager
 from functools import cache
 from pathlib import Path
@@ -275,6 +277,24 @@ def profiling_timer_off():
             callback.value = saved
 
 
+def _print_warning(message: str) -> None:
+    print(f"MuJoCo warning: {message}", file=sys.stderr)
+
+
+@contextmanager
+def warnings_to_stderr():
+    """MuJoCo's warnings printed to stderr for the block, restored after (process-global, like
+    the handler itself). Its default handler also appends each one to MUJOCO_LOG.TXT in the
+    working directory; on stderr the run's capture (`comparators.engine_output`) records it
+    and nothing is written beside the user's files."""
+    saved = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(_print_warning)
+    try:
+        yield
+    finally:
+        mujoco.set_mju_user_warning(saved)
+
+
 def step_rollout(model, data, n_steps: int, stride: int) -> tuple[np.ndarray, np.ndarray]:
     """Step with `mujoco.rollout`: (sample steps (S,), full states (S, nstate)).
 
@@ -432,11 +452,12 @@ class MujocoEngine:
         if self.missing:
             raise RuntimeError(f"engine 'mujoco' unavailable: {self.missing}")
         timer = RunTimer(scene, self.name, integrator, dt, duration)
-        with timer.setup():
-            model, data = build(scene, integrator, dt)
-            bodies = readback(model, data, scene)  # before stepping: rollout overwrites data
-            manifest = parity_manifest(model, scene)
-        with timer.stepping():
-            steps, states = step_rollout(model, data, timer.n_steps, timer.stride)
+        with warnings_to_stderr():
+            with timer.setup():
+                model, data = build(scene, integrator, dt)
+                bodies = readback(model, data, scene)  # before stepping: rollout overwrites data
+                manifest = parity_manifest(model, scene)
+            with timer.stepping():
+                steps, states = step_rollout(model, data, timer.n_steps, timer.stride)
         meta = timer.meta(package_versions("mujoco"), manifest, bodies)
         return timer.trajectory(steps, samples_from_states(model, states, len(scene.bodies)), meta)

@@ -20,6 +20,7 @@ import pandas as pd
 
 from cases.catalog import cube_rain
 from comparators.engine import ENGINES, unsupported
+from comparators.engine_output import message_count
 from comparators.timing import (
     LONG_RUN_S,
     SCALING_REPEATS,
@@ -73,6 +74,7 @@ SCALING_COLUMNS = [
     "cost_per_step_s",  # wall_s / steps
     "cost_per_body_step_s",  # wall_s / (steps * n_bodies)
     "setup_s",  # median over repeats: model building and compilation
+    "engine_messages",  # lines the engine printed or warned in the first repeat (RunMeta.messages)
     "verdict",  # "ok", "diverged", "tunnelled", "jitter" (comparators.verdict), "failed: ..."
 ]
 PLATEAU_COLUMNS = [
@@ -157,6 +159,7 @@ def _measure_count(scene, pairs, steps: int, repeats: int, report) -> list[dict]
     walls: dict[tuple, list[float]] = {pair: [] for pair in pairs}
     setups: dict[tuple, list[float]] = {pair: [] for pair in pairs}
     verdicts: dict[tuple, str] = {}
+    said: dict[tuple, int] = {}
     for repeat, pair in interleaved(pairs, repeats, rotate=False):
         if pair in verdicts and (
             verdicts[pair] != "ok" or not wants_another_timing(walls[pair], repeats, LONG_RUN_S)
@@ -169,16 +172,18 @@ def _measure_count(scene, pairs, steps: int, repeats: int, report) -> list[dict]
             continue
         if pair not in verdicts:
             verdicts[pair] = verdict(traj, scene)
+            said[pair] = message_count(traj.meta.messages)
         walls[pair].append(traj.meta.wall_s)
         setups[pair].append(traj.meta.setup_s)
     return [
-        _scaling_row(scene, pair, steps, walls[pair], setups[pair], verdicts[pair])
+        _scaling_row(scene, pair, steps, walls[pair], setups[pair], verdicts[pair], said.get(pair))
         for pair in pairs
     ]
 
 
-def _scaling_row(scene, pair, steps, walls, setups, outcome) -> dict:
-    """The table row of one pair at one N and window, timed only when its runs were valid."""
+def _scaling_row(scene, pair, steps, walls, setups, outcome, said=None) -> dict:
+    """The table row of one pair at one N and window, timed only when its runs were valid;
+    `said`: the lines its engine printed or warned (None: not run)."""
     n = len(scene.bodies)
     row = dict.fromkeys(SCALING_COLUMNS, np.nan)
     row.update(
@@ -191,6 +196,8 @@ def _scaling_row(scene, pair, steps, walls, setups, outcome) -> dict:
         repeats=len(walls) if outcome == "ok" else 0,
         verdict=outcome,
     )
+    if said is not None:
+        row["engine_messages"] = said
     if setups:
         row["setup_s"] = spread(setups).median
     if outcome == "ok":  # only valid runs are timed

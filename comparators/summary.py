@@ -8,6 +8,7 @@ import numpy as np
 
 from cases.exact import exact_states, exact_trajectory_available
 from cases.scene import Scene
+from comparators.engine_output import first_message, message_count
 from comparators.metrics import body_arrays, drifts, pose_errors, rest
 from comparators.trajectory import Trajectory
 from comparators.verdict import verdict
@@ -16,8 +17,9 @@ from comparators.verdict import verdict
 def summarize(traj: Trajectory, scene: Scene) -> dict[str, float | str | bool]:
     """One run's headline numbers: speed, drifts, pose error against the exact solution where
     the scene has one (largest over the run, and the orientation error at the end), largest
-    shape error (deforming engines), rest (where the scene predicts a rest height) and the
-    verdict (`comparators.verdict.verdict`: ok, diverged, tunnelled or jitter)."""
+    shape error (deforming engines), rest (where the scene predicts a rest height), what the
+    engine said while it ran (`engine_messages`: lines, and the first one where there is one)
+    and the verdict (`comparators.verdict.verdict`: ok, diverged, tunnelled or jitter)."""
     m = traj.meta
     out: dict[str, float | str | bool] = {
         "case": m.case,
@@ -53,5 +55,8 @@ def summarize(traj: Trajectory, scene: Scene) -> dict[str, float | str | bool]:
             out[prefix + "at_rest"] = r["at_rest"]
             out[prefix + "rest_com_height"] = r["com_height"]
             out[prefix + "rest_height_error"] = r["com_height"] - scene.expected.rest_com_height
+    out["engine_messages"] = message_count(m.messages)
+    if m.messages:
+        out["first_engine_message"] = first_message(m.messages)
     out["verdict"] = verdict(traj, scene)
     return out

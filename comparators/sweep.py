@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from rich.console import Console
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
@@ -73,6 +74,8 @@ RESULT_COLUMNS = [
     "shape_error",  # seed only, else NaN
     "rest_com_height",  # where the case predicts rest, else NaN
     "rest_height_error",
+    "engine_messages",  # lines the engine printed or warned during the run (RunMeta.messages)
+    "first_engine_message",  # the first of them, else NaN
     "verdict",  # "ok", "diverged", "tunnelled", "jitter" (comparators.verdict), "failed: ..."
     "engine_version",
     "code_version",
@@ -123,14 +126,18 @@ class SweepResult:
 
 
 # dt sweeps as multiples of each case's default dt. Full: two octaves coarser and four finer
-# reach the asymptotic range of every integrator on the exact cases. Quick: three points, the
-# fewest a convergence fit can use; the hard cases (tag "hard": long runs, small default dt) and
-# cases simulating more than QUICK_LONG_S only at their default dt, to keep
-# `rigidbench report --quick` within its 2-minute budget (docs/measurement.md).
+# reach the asymptotic range of every integrator on the exact cases; cases simulating more than
+# LONG_CASE_S (long-run drift, rest and the blog's 100 s) stop two octaves finer, four points:
+# their finest two dts cost three quarters of the full report's stepping on them (about a
+# fifth of it in all), which keeps the full report within its 15-minute budget
+# (docs/benchmarks.md). Quick: three points, the fewest a convergence fit can use; the hard
+# cases (tag "hard": long runs, small default dt) and the long ones only at their default dt,
+# to keep `rigidbench report --quick` within its 3-minute budget (docs/measurement.md).
 FULL_DT_FACTORS = (2.0, 1.0, 0.5, 0.25, 0.125, 0.0625)
+FULL_LONG_DT_FACTORS = (2.0, 1.0, 0.5, 0.25)
 QUICK_DT_FACTORS = (2.0, 1.0, 0.5)
 QUICK_HARD_DT_FACTORS = (1.0,)
-QUICK_LONG_S = 20.0
+LONG_CASE_S = 20.0
 # ... and timed once: the quick report shows their verdicts and outcomes, and their runs of up
 # to a second are not worth repeating for a timing median there (the full report and every
 # other case keep SWEEP_REPEATS).
@@ -163,22 +170,27 @@ def plan(
     """The runs of the matrix, ordered so that consecutive runs cycle through the engines:
     machine drift during the sweep then falls on every engine alike.
 
-    dt sweeps are `dt_factors` times each scene's dt; by default the full factors, or with
-    `quick` the quick ones, and for scenes tagged "hard" or longer than QUICK_LONG_S
-    QUICK_HARD_DT_FACTORS with at most QUICK_HARD_REPEATS timings. Scenes an engine does not
-    model (`comparators.engine.unsupported`) are left out for it (`comparators.engine.left_out`).
+    dt sweeps are `dt_factors` times each scene's dt; by default the full factors (for scenes
+    longer than LONG_CASE_S FULL_LONG_DT_FACTORS), or with `quick` the quick ones, and for
+    scenes tagged "hard" or longer than LONG_CASE_S QUICK_HARD_DT_FACTORS with at most
+    QUICK_HARD_REPEATS timings. Scenes an engine does not model
+    (`comparators.engine.unsupported`) are left out for it (`comparators.engine.left_out`).
     """
 
+    def long(scene: Scene) -> bool:
+        return scene.duration > LONG_CASE_S
+
     def hard(scene: Scene) -> bool:
-        reduced = HARD_TAG in scene.tags or scene.duration > QUICK_LONG_S
-        return quick and dt_factors is None and reduced
+        return quick and dt_factors is None and (HARD_TAG in scene.tags or long(scene))
 
     def factors(scene: Scene) -> tuple[float, ...]:
         if dt_factors:
             return dt_factors
         if hard(scene):
             return QUICK_HARD_DT_FACTORS
-        return QUICK_DT_FACTORS if quick else FULL_DT_FACTORS
+        if quick:
+            return QUICK_DT_FACTORS
+        return FULL_LONG_DT_FACTORS if long(scene) else FULL_DT_FACTORS
 
     per_engine = {
         name: [
@@ -295,9 +307,11 @@ def run_sweep(
     executor,
     progress: bool = True,
     left_out: list[str] | None = None,
+    console: Console | None = None,
 ) -> SweepResult:
     """Run every spec not already in `cache`, store each trajectory as it arrives, and
-    assemble the results table; `left_out` lines pass through to the result."""
+    assemble the results table; `left_out` lines pass through to the result. The progress bar
+    goes to `console` (default: rich's, on `sys.stdout`)."""
     start = time.perf_counter()
     keys = {
         spec: run_key(spec.scene, spec.engine, spec.integrator, spec.dt, spec.repeats)
@@ -321,7 +335,8 @@ def run_sweep(
         TextColumn("eta"),
         TimeRemainingColumn(),
     ]
-    with Progress(*columns, disable=not progress or not todo, transient=False) as bar:
+    show = progress and bool(todo)
+    with Progress(*columns, console=console, disable=not show, transient=False) as bar:
         task = bar.add_task(f"{len(todo)} runs ({len(specs) - len(todo)} cached)", total=len(todo))
         for spec, (traj, error, analysis) in executor.map_unordered(execute, todo):
             if traj is None:

@@ -66,6 +66,9 @@ class RunMeta:
     `sweeps_per_solve`, `at_limit` (solves stopped unconverged: at the iteration limit, or
     stalled), `subspace_per_solve` (the reference's direct solves within its sweeps) and
     `extrapolations_per_solve` (the reference's jumps along its sweeps' steady rate).
+    `messages` is what the engine printed or warned during the run: each distinct line (capped
+    in number and length) and how often it came, in order of first appearance
+    (`comparators.engine_output`).
     """
 
     case: str
@@ -81,6 +84,7 @@ class RunMeta:
     bodies: dict[str, dict] = field(default_factory=dict)
     wall_runs: list[float] = field(default_factory=list)  # every timing when repeated
     solver: dict[str, float] = field(default_factory=dict)
+    messages: dict[str, int] = field(default_factory=dict)
 
     @property
     def steps_per_s(self) -> float:

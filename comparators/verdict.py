@@ -8,6 +8,12 @@ Verdict, in precedence order:
   "jitter"     a scene that expects rest (`Expected.rest_com_height`) whose body still moves,
                some particle faster than JITTER_SPEED, in the final window (`final_window`);
   "ok"         none of these.
+
+What an engine printed or warned during the run (`RunMeta.messages`) is recorded beside the
+verdict (`engine_messages`), not in it: the verdict reads the states alone, the same way for
+every engine, and a message does not say by itself that the physics is invalid. Where one does,
+the adapter acts on it: MuJoCo's "Nan, Inf or huge value" warnings end its samples in NaN (so
+"diverged"), and its other warnings fail the run (`comparators.mujoco_engine.step_rollout`).
 """
 
 from __future__ import annotations

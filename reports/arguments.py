@@ -10,7 +10,9 @@ from pathlib import Path
 
 from comparators.bench import BENCH_DURATION_S, MIN_REPEATS
 
-DEFAULT_OUT = Path(__file__).resolve().parent / "out"
+# The report's folder, in the directory the command runs in: all a report writes (the results
+# cache too, in OUT/cache) goes there and nowhere else.
+DEFAULT_OUT = Path("rigidbench-report")
 
 
 def parse_positive_number(text: str) -> float:
@@ -85,7 +87,9 @@ def _add_report(sub) -> None:
         default=True,
         help="measure the cost per step of cube_rain_N against N (default: on)",
     )
-    rep.add_argument("--out", default=str(DEFAULT_OUT), help=f"output directory ({DEFAULT_OUT})")
+    rep.add_argument(
+        "--out", default=str(DEFAULT_OUT), help=f"output directory (default: ./{DEFAULT_OUT})"
+    )
     rep.add_argument("--cache", help="results cache directory (default: OUT/cache)")
     rep.add_argument("--executor", choices=("local", "dask"), default="local")
     rep.add_argument("--scheduler", help="Dask scheduler address, with --executor dask")
@@ -112,7 +116,9 @@ def _add_animate(sub) -> None:
         "--duration", type=parse_positive_number, help="simulated time in s (default: the case's)"
     )
     anim.add_argument("--out", required=True, help="the animation, FILE.gif")
-    anim.add_argument("--cache", help=f"results cache directory (default: {DEFAULT_OUT}/cache)")
+    anim.add_argument(
+        "--cache", help=f"results cache directory (default: ./{DEFAULT_OUT}/cache, the report's)"
+    )
 
 
 def _add_bench(sub) -> None:

@@ -3,6 +3,12 @@
 
 Bad input (unknown case, engine or integrator, malformed case file, NaN dt) is reported as one
 line on stderr with exit status 2 and no traceback; nothing is written.
+
+The terminal shows progress and one closing line saying what was written where. What engines
+print or warn goes into each run's record (`comparators.engine_output`), not onto the terminal:
+the console writes to `terminal_stream()`, which the runs' captures of file descriptors 1 and 2
+leave in place, so a progress bar or spinner refreshed during a run in this process stays on
+the terminal and out of the run's record.
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ from cases import CATALOG, InputError, resolve_case, scene_to_toml
 from cases.catalog import CUBE_RAIN_MAX, CUBE_RAIN_PREFIX, CUBE_RAIN_REPRESENTATIVE
 from comparators import ENGINES, get_engine, run
 from comparators.engine import ContractError, left_out, unsupported
+from comparators.engine_output import terminal_stream
 from comparators.parity import ParityError
 from comparators.summary import summarize
 from comparators.trajectory import atomic_path
@@ -73,9 +80,11 @@ THROUGHPUT_HEADERS = ("case", "engine", "integrator", "dt", "steps/s [min, max]"
 
 
 def _throughput_console_table(table, title: str) -> Table:
-    """The bench table for the terminal: steps/s median [min, max], the ratio, the verdict."""
+    """The bench table for the terminal: steps/s median [min, max], the ratio, the lines the
+    engine printed or warned (where any did), the verdict."""
+    said = bool((table["engine_messages"].fillna(0) > 0).any())
     shown = Table(title=title)
-    for col in THROUGHPUT_HEADERS:
+    for col in THROUGHPUT_HEADERS + (("messages",) if said else ()):
         shown.add_column(
             col, justify="left" if col in ("case", "engine", "integrator") else "right"
         )
@@ -85,8 +94,10 @@ def _throughput_console_table(table, title: str) -> Table:
         if not math.isnan(row.steps_per_s):
             rate += f" [{_format_rate(row.steps_per_s_min)}, {_format_rate(row.steps_per_s_max)}]"
         ratio = _format_rate(row.ratio_vs_mujoco_euler)
-        cells = (row.case, row.engine, row.integrator, f"{row.dt:g}", rate, ratio, row.verdict)
-        shown.add_row(*map(Text, cells))
+        cells = [row.case, row.engine, row.integrator, f"{row.dt:g}", rate, ratio]
+        if said:
+            cells.append(_format_metric(row.engine_messages))
+        shown.add_row(*map(Text, [*cells, row.verdict]))
     return shown
 
 
@@ -137,7 +148,7 @@ def _cmd_run(args, console: Console) -> None:
         table.add_row(key, _format_metric(value))
     console.print(table)
     if args.out:
-        console.print(f"wrote {len(traj.table)} rows to {args.out}")
+        console.print(f"run: wrote {len(traj.table)} rows to {args.out}", markup=False)
 
 
 def _gif_out(text: str) -> Path:
@@ -224,13 +235,17 @@ def _cmd_animate(args, console: Console) -> None:
     columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn()]
     with Progress(*columns, TimeElapsedColumn(), console=console) as bar:
         task = bar.add_task(f"drawing {scene.name}", total=None)
-        animate(
-            scene,
-            runs,
-            out,
-            progress=lambda done, total: bar.update(task, completed=done, total=total),
-        )
-    console.print(f"wrote {out} ({out.stat().st_size / 1e3:.0f} kB, {len(runs)} panels)")
+
+        def drawn(done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total)
+
+        animate(scene, runs, out, progress=drawn)
+        frames = bar.tasks[0].completed
+    closing = (
+        f"animate: wrote {out.as_posix()} ({out.stat().st_size / 1e3:.0f} kB, {len(runs)} "
+        f"panels, {frames:.0f} frames); runs cached in {cache.root.as_posix()}/"
+    )
+    console.print(closing, markup=False, soft_wrap=True)
 
 
 def _bench_out(text: str | None) -> Path | None:
@@ -258,15 +273,15 @@ def _cmd_bench(args, console: Console) -> None:
     start = time.perf_counter()
     with console.status("compiling the reference simulator", spinner="dots"):
         warm_up(engines)
-    table = bench(scenes, engines, args.dt, args.duration, args.repeats)
+    table = bench(scenes, engines, args.dt, args.duration, args.repeats, console=console)
     console.print(_throughput_console_table(table, "stepping throughput (steps/s, stepping only)"))
+    closing = f"bench: {len(table)} rows in {time.perf_counter() - start:.1f} s"
     if out is not None:
         with atomic_path(out) as tmp:
             table.to_csv(tmp, index=False)
         figure = plot_throughput(table, out.with_suffix(".png"))
-        console.print(f"wrote {out}")
-        console.print(f"wrote {figure}")
-    console.print(f"{len(table)} rows in {time.perf_counter() - start:.1f} s")
+        closing += f"; wrote {out} and {figure}"
+    console.print(closing, markup=False, soft_wrap=True)
 
 
 def _executor(args):
@@ -312,19 +327,28 @@ def _cmd_report(args, console: Console) -> None:
     with console.status("compiling the reference simulator", spinner="dots"):
         warm_up(engines)
     specs = plan(scenes, engines, quick=args.quick)
-    result = run_sweep(specs, cache, executor, left_out=_print_left_out(console, scenes, engines))
+    lines = _print_left_out(console, scenes, engines)
+    result = run_sweep(specs, cache, executor, left_out=lines, console=console)
     # scaling after the sweep: none of the sweep's workers competes for the cores
     table = _measure_scaling(args, engines, console) if args.scaling else None
     command = " ".join(["rigidbench", *sys.argv[1:]])
-    files = write_report(result, out, command=command, scaling=table)
-    failed = result.results["verdict"].str.startswith("failed").sum()
-    diverged = (result.results["verdict"] == "diverged").sum()
-    console.print(
-        f"{len(specs)} runs ({result.computed} computed, {result.cached} cached, "
-        f"{diverged} diverged, {failed} failed) in {time.perf_counter() - start:.1f} s"
+    write_report(result, out, command=command, scaling=table)
+    closing = _report_closing(result, out, time.perf_counter() - start)
+    console.print(closing, markup=False, soft_wrap=True)  # one line, also on a narrow terminal
+
+
+def _report_closing(result, out: Path, elapsed_s: float) -> str:
+    """The report's one closing line: the folder, the file to open, and what the runs gave."""
+    verdicts = result.results["verdict"]
+    failed = verdicts.str.startswith("failed").sum()
+    diverged = (verdicts == "diverged").sum()
+    said = (result.results["engine_messages"].fillna(0) > 0).sum()
+    return (
+        f"report: {out.as_posix()}/ (open {(out / 'index.html').as_posix()}); "
+        f"{len(result.results)} runs ({result.computed} computed, {result.cached} cached; "
+        f"{diverged} diverged, {failed} failed, {said} with engine messages) "
+        f"in {elapsed_s:.1f} s"
     )
-    for path in files.values():
-        console.print(f"wrote {path}")
 
 
 COMMANDS = {
@@ -340,7 +364,8 @@ COMMANDS = {
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    console = Console()
+    terminal = terminal_stream()
+    console = Console(file=terminal)
     try:
         COMMANDS[args.command](args, console)
     except InputError as exc:
@@ -352,6 +377,9 @@ def main(argv: list[str] | None = None) -> int:
     except ContractError as exc:
         print(f"rigidbench: engine error: {exc}", file=sys.stderr)
         return EXIT_PARITY
+    finally:
+        if terminal is not sys.stdout:
+            terminal.close()
     return 0
 
 

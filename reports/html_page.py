@@ -11,8 +11,10 @@ from urllib.parse import unquote, urlparse
 
 import markdown
 
+from reports.plots import VERDICT_COLOURS
+
 CSS = """
-body { font-family: system-ui, sans-serif; max-width: 60rem; margin: 2rem auto; padding: 0 1rem;
+body { font-family: system-ui, sans-serif; max-width: 76rem; margin: 2rem auto; padding: 0 1rem;
        line-height: 1.45; color: #222; }
 table { border-collapse: collapse; margin: 0.8rem 0; font-size: 0.9rem; display: block;
         overflow-x: auto; }
@@ -21,7 +23,22 @@ th { background: #f0f0f0; }
 td { font-variant-numeric: tabular-nums; }
 img { max-width: 100%; }
 code { background: #f4f4f4; padding: 0 0.2rem; }
+p, li { overflow-wrap: anywhere; }
+details { margin: 0.6rem 0 1.6rem; }
+summary { cursor: pointer; font-weight: 600; }
+.verdict { padding: 0 0.3rem; border-radius: 0.2rem; white-space: nowrap; }
 """
+
+
+def _verdict_css() -> str:
+    """The summary's verdict words in the stability maps' colours (`reports.plots`)."""
+    rules = []
+    for verdict, colour in VERDICT_COLOURS.items():
+        text = "white" if verdict in ("diverged", "failed") else "#222"
+        name = verdict.replace(" ", "-")
+        rules.append(f".verdict-{name} {{ background: {colour}; color: {text}; }}")
+    return "\n".join(rules) + "\n"
+
 
 PAGE = """<!DOCTYPE html>
 <html lang="en">
@@ -38,9 +55,11 @@ PAGE = """<!DOCTYPE html>
 
 
 def render_html(markdown_text: str, title: str = "rigidbench report") -> str:
-    """index.html: the Markdown converted (tables, fenced code) in a small styled page."""
-    body = markdown.markdown(markdown_text, extensions=["tables", "fenced_code"])
-    return PAGE.format(title=html.escape(title), css=CSS, body=body)
+    """index.html: the Markdown converted (tables, fenced code, heading ids as GitHub gives
+    them, Markdown inside `<details>`) in a small styled page."""
+    extensions = ["tables", "fenced_code", "toc", "md_in_html"]
+    body = markdown.markdown(markdown_text, extensions=extensions)
+    return PAGE.format(title=html.escape(title), css=CSS + _verdict_css(), body=body)
 
 
 class _References(HTMLParser):

@@ -28,6 +28,7 @@ from reports.figures import (
 )
 from reports.html_page import render_html
 from reports.sections.case import case_section
+from reports.sections.layout import contents
 from reports.sections.limits import cost_section, largest_stable_section
 from reports.sections.manifest import parity_section, versions_section
 from reports.sections.outcomes import contact_validation_section
@@ -38,6 +39,7 @@ from reports.sections.overview import (
     timing_section,
 )
 from reports.sections.scaling import scaling_section
+from reports.sections.summary import summary_section
 from reports.tables import write_outcomes, write_results, write_scaling, write_text
 
 
@@ -57,15 +59,21 @@ def render_markdown(
 ) -> str:
     """report.md's text; `figures` by key (`reports.figures`), paths under `out`; a Scaling
     section when `scaling` is given."""
-    parts = [header_section(result, command, scaling is not None)]
-    parts += [timing_section(result.results), throughput_section(result, figures, out)]
+    parts = [summary_section(result, fits), throughput_section(result, figures, out)]
     parts += [catalog_section(result)]
     parts += [case_section(result, case, fits, figures, out) for case in result.scenes]
     parts += [largest_stable_section(result), contact_validation_section(result)]
     parts += [cost_section(result.results)]
     if scaling is not None:
         parts += [scaling_section(scaling, figures, out)]
-    parts += [parity_section(result), versions_section(result)]
+    parts += [timing_section(result.results), parity_section(result), versions_section(result)]
+    # the summary first, then the contents of everything after it
+    parts = [
+        header_section(result, command, scaling is not None),
+        parts[0],
+        contents(parts),
+        *parts[1:],
+    ]
     return "\n".join("\n".join(p) + "\n" for p in parts)
 
 

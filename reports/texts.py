@@ -13,19 +13,39 @@ from reports.convergence import ERROR_CEILING_DEG, ERROR_FLOOR_DEG, MIN_FIT_POIN
 from reports.tables import EMPTY_CELL
 
 
-def contents(scaling: bool) -> str:
-    """The list of sections under the report's title."""
-    scaled = ("scaling with the number of bodies; ", ", `scaling.csv` (one row per scaling run)")
-    scaled = scaled if scaling else ("", "")
+def data_files(scaling: bool) -> str:
+    """Where the report's numbers are, under its title."""
+    scaled = ", `scaling.csv` (one row per scaling run)" if scaling else ""
     return (
-        "Sections: how the timings were measured; throughput; the catalog; per case its "
-        "motion (the core cases, animated), metrics, drift over "
-        "time, convergence in dt, work-precision, stability map and measured outcomes; the "
-        "largest stable dt; contact validation against closed forms; cost to reach a tolerance; "
-        f"{scaled[0]}the parity manifest; machine and versions. All numbers are in `results.csv` "
-        f"(one row per run){scaled[1]} and `outcomes.csv` (one row per run and measured "
-        "quantity)."
+        f"All numbers are in `results.csv` (one row per run){scaled} and `outcomes.csv` (one "
+        "row per run and measured quantity)."
     )
+
+
+SUMMARY = (
+    "Each case (linked to its section) by engine: the verdict of every integrator at the "
+    "case's default dt, and the engine most accurate at equal cost."
+)
+SUMMARY_LEGEND = (
+    "How to read: ok; diverged (a non-finite state or energy blown up); tunnelled (a body "
+    "passed through a plane); jitter (a body that should rest still moves); failed (no run). "
+    "Where an engine's integrators differ, each verdict names its integrators. Most accurate at "
+    "equal cost: the engine with the smallest orientation error at the most time budgets of "
+    "the case's work-precision plot (at how many, of how many)."
+)
+SUMMARY_OUTCOMES = (
+    "How to read: per case, the closed-form outcome that says most about it, and what each "
+    "engine measures with its default integrator at the case's default dt, with its relative "
+    "error (its absolute error against a closed form of 0), and the run's verdict where it is "
+    "not ok (alone where the run diverged or failed). Every quantity, integrator and dt: "
+    "Contact validation and each case's Outcomes."
+)
+FINDINGS = (
+    "Generated from the results at each case's default dt by the rules in "
+    "`reports/findings.py` (verdicts other than ok, closed forms missed by more than their "
+    "tolerance, energy drift without contact, convergence orders below the expected); each "
+    "links to the cases it comes from."
+)
 
 
 def timing(repeats: str) -> str:
@@ -78,6 +98,11 @@ SOLVER_NOTE = (
     "the solves it stopped unconverged (at its iteration limit, or stalled), its subspace steps "
     "per solve (a direct solve of the contacts that push, each costing more than a sweep) and "
     "its extrapolations per solve (a jump along the sweeps' steady rate of convergence)."
+)
+MESSAGES_NOTE = (
+    " Engine messages are what an engine printed or warned while it ran (lines, and the first "
+    "of them; every one is in its trajectory's record): they stand beside the verdict, which "
+    "is measured from the states alone."
 )
 DRIFT = (
     "How to read: relative error of total energy and angular momentum against time at the "

@@ -1,22 +1,30 @@
 """The rigidbench command line: commands work, bad input exits 2 with one line and no traceback."""
 
+import os
 import subprocess
 import sys
+from pathlib import Path
 
+import pandas as pd
 import pytest
 
 from cases import CATALOG, load_scene
 from comparators import COLUMNS, Trajectory
 from reports.cli import main
 
+ROOT = Path(__file__).resolve().parent.parent
+
 
 def rigidbench(*args: str, cwd=None) -> subprocess.CompletedProcess:
+    """The command as a user runs it, from this checkout's sources whatever `cwd` is."""
+    path = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
     return subprocess.run(
         [sys.executable, "-m", "reports.cli", *args],
         capture_output=True,
         text=True,
         timeout=600,
         cwd=cwd,
+        env={**os.environ, "PYTHONPATH": path},
     )
 
 
@@ -100,6 +108,33 @@ def test_report_end_to_end(tmp_path):
         "--out", str(out),
     )  # fmt: skip
     assert "0 computed" in again.stdout
+
+
+def test_a_report_is_quiet_and_writes_only_its_folder(tmp_path):
+    """MuJoCo Euler diverges on high_spin at its dt and warns: the warning is in that run's
+    record, not on the terminal, nor in a MUJOCO_LOG.TXT; the terminal shows the progress and
+    one closing line; the working directory gets rigidbench-report/ and nothing else."""
+    proc = rigidbench(
+        "report", "--cases", "free_spin_cube", "high_spin", "--engines", "reference", "mujoco",
+        "--no-scaling", "--quick", cwd=tmp_path,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr == ""
+    *progress, closing = proc.stdout.strip().splitlines()
+    assert closing.startswith("report: rigidbench-report/ (open rigidbench-report/index.html); ")
+    assert all("━" in line for line in progress), proc.stdout  # the bar's lines, nothing else
+    for text in ("QACC", "WARNING", "warning", "unstable", "wrote"):
+        assert text not in proc.stdout, proc.stdout
+    assert [p.name for p in tmp_path.iterdir()] == ["rigidbench-report"]
+    out = tmp_path / "rigidbench-report"
+    assert (out / "index.html").is_file() and any((out / "cache").iterdir())
+    results = pd.read_csv(out / "results.csv")
+    run = results.set_index(["case", "engine", "integrator"]).loc[("high_spin", "mujoco", "Euler")]
+    assert run["verdict"] == "diverged" and run["engine_messages"] == 1
+    assert "Nan, Inf or huge value in QACC" in run["first_engine_message"]
+    assert "1 with engine messages" in closing
+    report = (out / "report.md").read_text()
+    assert "Nan, Inf or huge value in QACC" in report  # in high_spin's metrics table
 
 
 @pytest.mark.parametrize(

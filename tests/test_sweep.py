@@ -10,6 +10,9 @@ from comparators.cache import ResultsCache
 from comparators.engine import ENGINES
 from comparators.summary import summarize
 from comparators.sweep import (
+    FULL_DT_FACTORS,
+    FULL_LONG_DT_FACTORS,
+    LONG_CASE_S,
     OUTCOMES_COLUMNS,
     QUICK_DT_FACTORS,
     QUICK_HARD_DT_FACTORS,
@@ -88,6 +91,17 @@ def test_quick_sweep_runs_hard_cases_at_their_default_dt_only():
     }
     assert factors["tumbling_box"] == pytest.approx(sorted(QUICK_DT_FACTORS))
     assert factors["hard_one"] == pytest.approx(sorted(QUICK_HARD_DT_FACTORS))
+
+
+def test_full_sweep_stops_long_cases_two_octaves_finer():
+    long = dataclasses.replace(SHORT[1], name="long_one", duration=2 * LONG_CASE_S)
+    specs = plan([SHORT[0], long], ["reference"], repeats=1)
+    factors = {
+        name: sorted({s.dt / s.scene.dt for s in specs if s.scene.name == name})
+        for name in ("tumbling_box", "long_one")
+    }
+    assert factors["tumbling_box"] == pytest.approx(sorted(FULL_DT_FACTORS))
+    assert factors["long_one"] == pytest.approx(sorted(FULL_LONG_DT_FACTORS))
 
 
 def test_cache_resumes_an_interrupted_sweep(tmp_path):

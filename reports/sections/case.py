@@ -12,7 +12,7 @@ import pandas as pd
 from comparators.sweep import SweepResult
 from reports import plots, texts
 from reports.convergence import ERROR_FLOOR_DEG, lowest_front
-from reports.sections.layout import case_figure, subsection
+from reports.sections.layout import case_figure, case_title, folded, subsection
 from reports.sections.outcomes import case_outcomes
 from reports.tables import EMPTY_CELL, escape_markdown, format_number, markdown_table
 
@@ -33,8 +33,11 @@ METRIC_HEADERS = {
     "solver_at_limit": "solves stopped unconverged",
     "solver_subspace": "subspace steps per solve",
     "solver_extrapolations": "extrapolations per solve",
+    "engine_messages": "engine messages",
     "verdict": "verdict",
 }
+# what a case's folded detail holds
+CASE_DETAIL = "Metrics, drift, convergence in dt, work-precision, stability map, outcomes"
 # columns dropped when all NaN
 SHOWN_WHERE_MEASURED = (
     "rest_com_height",
@@ -46,6 +49,25 @@ SHOWN_WHERE_MEASURED = (
 )
 
 
+# Characters of an engine's first message shown in a cell (the results table has it whole).
+MESSAGE_CELL_CHARS = 80
+
+
+def any_engine_messages(runs: pd.DataFrame) -> bool:
+    """True when an engine printed or warned something in some run of `runs`."""
+    return bool((runs["engine_messages"].fillna(0) > 0).any())
+
+
+def _messages_cell(row) -> str:
+    """ "N: the first message" (shortened), or EMPTY_CELL when the engine said nothing."""
+    if not row.engine_messages > 0:  # also NaN: a failed run, whose verdict says it all
+        return EMPTY_CELL
+    first = str(row.first_engine_message)
+    if len(first) > MESSAGE_CELL_CHARS:
+        first = first[: MESSAGE_CELL_CHARS - 1] + "…"
+    return f"{int(row.engine_messages)}: {first}"
+
+
 def _metrics_table(runs: pd.DataFrame) -> str:
     """One row per run, grouped by engine/integrator, largest dt first."""
     headers = {
@@ -53,10 +75,13 @@ def _metrics_table(runs: pd.DataFrame) -> str:
         for col, head in METRIC_HEADERS.items()
         if col not in SHOWN_WHERE_MEASURED or runs[col].notna().any()
     }
+    if not any_engine_messages(runs):
+        del headers["engine_messages"]
     pairs = list(zip(runs["engine"], runs["integrator"], strict=True))
     rank = {pair: k for k, pair in enumerate(dict.fromkeys(pairs))}
     table = runs.assign(_pair=[rank[p] for p in pairs])
     table = table.sort_values(["_pair", "dt"], ascending=[True, False], kind="stable")
+    table["engine_messages"] = [_messages_cell(r) for r in table.itertuples()]
     return markdown_table(table[list(headers)].rename(columns=headers))
 
 
@@ -102,6 +127,22 @@ def _smallest_error(data: pd.DataFrame) -> str:
     return smallest
 
 
+def _lowest(data: pd.DataFrame) -> pd.DataFrame:
+    """`lowest_front` by engine of valid runs' orientation error against stepping time."""
+    return lowest_front(data, plots.COST, plots.ERROR, "engine", ERROR_FLOOR_DEG)
+
+
+def front_leader(runs: pd.DataFrame) -> tuple[str, int, int] | None:
+    """(engine, budgets it is lowest at, budgets) of the engine most accurate at equal cost
+    (`pareto_sentence`), None when fewer than two engines have valid runs with an error."""
+    data = plots.valid_costs(runs)
+    if data.empty or data["engine"].nunique() < 2:
+        return None
+    lowest = _lowest(data)
+    counts = lowest.sum().sort_values(ascending=False, kind="stable")
+    return counts.index[0], int(counts.iloc[0]), len(lowest)
+
+
 def pareto_sentence(runs: pd.DataFrame) -> str:
     """Which engine holds the lowest work-precision front most often, and the smallest error."""
     data = plots.valid_costs(runs)
@@ -110,7 +151,7 @@ def pareto_sentence(runs: pd.DataFrame) -> str:
     smallest = _smallest_error(data)
     if data["engine"].nunique() == 1:
         return f"Only {data['engine'].iloc[0]} has valid runs with an error here. {smallest}"
-    lowest = lowest_front(data, plots.COST, plots.ERROR, "engine", ERROR_FLOOR_DEG)
+    lowest = _lowest(data)
     counts = lowest.sum().sort_values(ascending=False, kind="stable")
     leader = counts.index[0]
     tied = lowest[lowest[leader] & (lowest.sum(axis=1) > 1)]
@@ -131,7 +172,7 @@ def _intro(result: SweepResult, case: str) -> list[str]:
     scene = result.scenes[case]
     reference = result.references.get(case, EMPTY_CELL)
     lines = [
-        f"## Case `{case}`",
+        f"## {case_title(case)}",
         "",
         f"{escape_markdown(scene.description)} Modelled: {escape_markdown(scene.modelled())}. "
         f"Errors against: {escape_markdown(reference)}.",
@@ -150,6 +191,7 @@ def case_section(
     if runs.empty:
         return [*_intro(result, case), "", "No runs."]
     solver = texts.SOLVER_NOTE if runs["solver_sweeps"].notna().any() else ""
+    solver += texts.MESSAGES_NOTE if any_engine_messages(runs) else ""
     contact = texts.CONTACT_ORDER_NOTE if scene.has_contact else ""
     drift = case_figure(figures, case, "drift", out, "energy and angular momentum drift")
     errors = case_figure(figures, case, "convergence", out, "orientation error against dt")
@@ -157,14 +199,13 @@ def case_section(
     work_precision = case_figure(figures, case, "work_precision", out, wp_alt)
     stability = case_figure(figures, case, "stability", out, "stability map")
     fit_table = _fit_table(fits[fits["case"] == case])
+    # the motion stays outside the fold: a reader sees each core case move without a click
     motion = []
     if (case, "animation") in figures:
         motion = subsection(
             "Motion", texts.MOTION, case_figure(figures, case, "animation", out, "motion")
         )
-    return [
-        *_intro(result, case),
-        *motion,
+    detail = [
         *subsection("Metrics", texts.METRICS + solver, _metrics_table(runs)),
         *subsection("Drift over time", texts.DRIFT, drift),
         *subsection("Convergence in dt", texts.CONVERGENCE + contact, errors, fit_table),
@@ -172,3 +213,4 @@ def case_section(
         *subsection("Stability map", texts.STABILITY_MAP, stability),
         *case_outcomes(result, case),
     ]
+    return [*_intro(result, case), *motion, *folded(CASE_DETAIL, detail)]

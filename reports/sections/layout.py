@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from markdown.extensions.toc import slugify
+
 from reports.convergence import MIN_FIT_POINTS
 from reports.figures import figure_link
 
@@ -35,3 +37,42 @@ def case_figure(figures: dict, case: str, kind: str, out: Path, alt: str) -> str
             "more dt swept; the other figures need a valid run).*"
         )
     return link
+
+
+def anchor(title: str) -> str:
+    """The id of a heading titled `title` (Markdown, backticks allowed): what Python-Markdown's
+    toc extension (index.html) and GitHub (report.md) both give it."""
+    return slugify(title.replace("`", ""), "-")
+
+
+def case_title(case: str) -> str:
+    """The heading of a case's section."""
+    return f"Case `{case}`"
+
+
+def case_link(case: str) -> str:
+    """A Markdown link to a case's section."""
+    return f"[{case}](#{anchor(case_title(case))})"
+
+
+def folded(summary: str, lines: list[str]) -> list[str]:
+    """`lines` in a `<details>` block opened by clicking `summary`: Markdown inside is rendered
+    by GitHub and by Python-Markdown's md_in_html (the markdown="1" attribute)."""
+    return ["", f'<details markdown="1"><summary>{summary}</summary>', "", *lines, "", "</details>"]
+
+
+def contents(parts: list[list[str]]) -> list[str]:
+    """The table of contents of the report's `parts` (each opening with its "## " heading):
+    one link per section, the cases on one line."""
+    items, cases = [], []
+    for part in parts:
+        title = part[0].removeprefix("## ")
+        if title.startswith("Case `"):
+            name = title.removeprefix("Case `").removesuffix("`")
+            cases.append(f"[{name}](#{anchor(title)})")
+            if len(cases) == 1:
+                items.append(None)  # where the cases' line goes
+        else:
+            items.append(f"[{title}](#{anchor(title)})")
+    line = "Cases: " + " · ".join(cases)
+    return ["## Contents", "", *(f"- {line if item is None else item}" for item in items)]

@@ -10,7 +10,7 @@ import pandas as pd
 
 from comparators.sweep import SweepResult
 from reports import texts
-from reports.sections.layout import section, subsection
+from reports.sections.layout import folded, section, subsection
 from reports.tables import EMPTY_CELL, escape_markdown, markdown_table
 
 
@@ -84,9 +84,10 @@ def parity_section(result: SweepResult) -> list[str]:
         include_groups=False,
     )
     lines = section("Parity manifest", texts.PARITY, markdown_table(status.reset_index()))
+    settings = []
     for engine, runs in results.groupby("engine", sort=False):
-        lines += _engine_settings(engine, runs, result.trajectories)
-    return lines
+        settings += _engine_settings(engine, runs, result.trajectories)
+    return lines + folded("Each engine's settings", settings)
 
 
 def versions_section(result: SweepResult) -> list[str]:

@@ -36,7 +36,7 @@ def header_section(result: SweepResult, command: str, scaling: bool = False) -> 
         f"{escape_markdown(result.executor)}.",
         "",
         *_left_out_lines(result.left_out),
-        texts.contents(scaling),
+        texts.data_files(scaling),
     ]
 
 

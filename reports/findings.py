@@ -1,0 +1,207 @@
+"""Findings: short statements generated from a sweep's results, each naming its evidence.
+
+Every finding follows from the results and outcomes tables by a rule below, at each case's
+default dt (what a user of the engine gets); none is written by hand. The summary section lists
+them with links to the cases they come from.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from cases.scene import Scene
+
+# Verdicts other than "ok" worth a finding, worst first, and how a sentence says each.
+VERDICT_PHRASES = {
+    "diverged": "diverged",
+    "tunnelled": "tunnelled (a body passed through a plane)",
+    "jitter": "jitter (never came to rest)",
+}
+# Closed-form outcomes and how far a measurement may sit from its closed form before a reader is
+# told: the rebound ratio within 2 % of e, the stopping distance and the slope acceleration within
+# 1 % (the reference simulator's own gates, tests/test_hard_cases.py, which every rigid
+# integrator meets; a zero closed form, as a slope acceleration where the body sticks, is
+# judged by `slides` instead); a resting height within 1 mm and a creep below 1 mm (ten times
+# the 1e-4 m by which soft contacts settle); `slides` (1 or 0) must match.
+RELATIVE_TOLERANCES = {"rebound_ratio": 0.02, "stopping_distance": 0.01, "slope_acceleration": 0.01}
+ABSOLUTE_TOLERANCES = {"rest_com_height": 1e-3, "creep": 1e-3, "slides": 0.5}
+QUANTITY_NAMES = {
+    "rebound_ratio": "rebound ratio",
+    "stopping_distance": "stopping distance",
+    "slope_acceleration": "slope acceleration",
+    "rest_com_height": "rest height",
+    "creep": "creep",
+    "slides": "slides",
+}
+# A body without contact conserves its energy exactly; a drift above a tenth at the default dt
+# changes the motion's character (a tumbler's spin moves between its axes), not only its phase.
+ENERGY_DRIFT_NOTE = 0.1
+# A fitted convergence order this far from the expected one, with a fit this good, is a
+# different order (fits scatter by about 0.1 around the expected order, docs/benchmarks.md).
+ORDER_MISMATCH = 0.5
+ORDER_FIT_R2 = 0.9
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One statement: `text` (Markdown, naming engine and integrator), `cases` its evidence."""
+
+    kind: str
+    text: str
+    cases: tuple[str, ...]
+
+
+def at_default_dt(table: pd.DataFrame, scenes: dict[str, Scene]) -> pd.DataFrame:
+    """The rows of `table` (results or outcomes) run at their case's default dt."""
+    default = table["case"].map({name: scene.dt for name, scene in scenes.items()})
+    return table[np.isclose(table["dt"].astype(float), default.astype(float), rtol=1e-9)]
+
+
+def _values(items, fmt: str) -> str:
+    """The items' values as "low to high" (one value when they agree)."""
+    values = [i.value for i in items]
+    low, high = min(values), max(values)
+    return format(low, fmt) if np.isclose(low, high) else f"{low:{fmt}} to {high:{fmt}}"
+
+
+@dataclass(frozen=True)
+class _Item:
+    engine: str
+    integrator: str
+    case: str
+    value: float
+    squared: bool = False  # a rebound ratio at e squared, within the rebound's tolerance
+
+
+def _gather(items: list[_Item], kind: str, describe) -> list[Finding]:
+    """One finding per engine: its integrators and cases among `items`, `describe(its items)`
+    the sentence after them."""
+    by_engine: dict[str, list[_Item]] = {}
+    for item in items:
+        by_engine.setdefault(item.engine, []).append(item)
+    found = []
+    for engine, own in by_engine.items():
+        integrators = ", ".join(dict.fromkeys(i.integrator for i in own))
+        cases = tuple(dict.fromkeys(i.case for i in own))
+        found.append(Finding(kind, f"**{engine}** {integrators}: {describe(own)}", cases))
+    return found
+
+
+def verdict_findings(results: pd.DataFrame, scenes: dict[str, Scene]) -> list[Finding]:
+    """Engine/integrators whose runs at the default dt end in a verdict other than ok."""
+    runs = at_default_dt(results, scenes)
+    found = []
+    for verdict, phrase in VERDICT_PHRASES.items():
+        bad = runs[runs["verdict"] == verdict]
+        items = [_Item(r.engine, r.integrator, r.case, 0.0) for r in bad.itertuples()]
+        found += _gather(items, verdict, lambda _, p=phrase: f"{p} at the default dt")
+    return found
+
+
+def _outcome_miss(row) -> _Item | None:
+    """The item of an outcome row that misses its closed form, None within tolerance."""
+    expected = 0.0 if row.quantity == "creep" else row.expected
+    if pd.isna(row.measured) or pd.isna(expected):
+        return None
+    if row.quantity in RELATIVE_TOLERANCES:
+        if expected == 0:
+            return None
+        value = row.measured / expected - 1
+        if abs(value) <= RELATIVE_TOLERANCES[row.quantity]:
+            return None
+        tolerance = RELATIVE_TOLERANCES[row.quantity] * expected**2
+        squared = row.quantity == "rebound_ratio" and abs(row.measured - expected**2) <= tolerance
+        return _Item(row.engine, row.integrator, row.case, value, squared)
+    value = row.measured - expected
+    if abs(value) <= ABSOLUTE_TOLERANCES[row.quantity]:
+        return None
+    return _Item(row.engine, row.integrator, row.case, value)
+
+
+def outcome_findings(
+    outcomes: pd.DataFrame, results: pd.DataFrame, scenes: dict[str, Scene]
+) -> list[Finding]:
+    """Engine/integrators whose closed-form outcomes at the default dt miss their closed form
+    by more than the quantity's tolerance: relative misses for RELATIVE_TOLERANCES (a rebound
+    ratio at e squared said so), absolute ones for ABSOLUTE_TOLERANCES. Only runs
+    with the verdict ok: the others have their verdict's finding."""
+    ok = results.loc[results["verdict"] == "ok", ["case", "engine", "integrator", "dt"]]
+    rows = at_default_dt(outcomes.merge(ok, on=["case", "engine", "integrator", "dt"]), scenes)
+    found = []
+    for quantity, name in QUANTITY_NAMES.items():
+        own = rows[rows["quantity"] == quantity]
+        items = [i for i in map(_outcome_miss, own.itertuples()) if i is not None]
+        if quantity in RELATIVE_TOLERANCES:
+
+            def describe(mine, name=name):
+                text = f"{name} off its closed form by {_values(mine, '+.0%')}"
+                return text + (
+                    ", at e² (restitution applied twice)" if all(i.squared for i in mine) else ""
+                )
+        elif quantity == "slides":
+
+            def describe(mine):
+                return " and ".join(
+                    sorted(
+                        {
+                            "slides where it should stick"
+                            if i.value > 0
+                            else "sticks where it should slide"
+                            for i in mine
+                        }
+                    )
+                )
+        else:
+            unit = own["unit"].iloc[0] if len(own) else ""
+
+            def describe(mine, name=name, unit=unit):
+                return f"{name} off its closed form by {_values(mine, '+.2g')} {unit}"
+
+        found += _gather(items, quantity, describe)
+    return found
+
+
+def energy_findings(results: pd.DataFrame, scenes: dict[str, Scene]) -> list[Finding]:
+    """Engine/integrators that drift in energy without contact, where energy is conserved."""
+    runs = at_default_dt(results, scenes)
+    free = [name for name, scene in scenes.items() if not scene.has_contact]
+    runs = runs[runs["case"].isin(free) & (runs["verdict"] == "ok")]
+    runs = runs[runs["energy_drift"] > ENERGY_DRIFT_NOTE]
+    items = [_Item(r.engine, r.integrator, r.case, r.energy_drift) for r in runs.itertuples()]
+    return _gather(
+        items, "energy", lambda mine: f"energy drifts {_values(mine, '.0%')} without contact"
+    )
+
+
+def order_findings(fits: pd.DataFrame, scenes: dict[str, Scene]) -> list[Finding]:
+    """Engine/integrators whose fitted order in dt on a contact-free case is below the expected
+    one (contact lowers every order: the report says so where it fits it; an order above the
+    expected one is a symmetric body's errors cancelling, not a fault)."""
+    free = [name for name, scene in scenes.items() if not scene.has_contact]
+    fits = fits[fits["case"].isin(free) & np.isfinite(fits["order"].astype(float))]
+    off = fits["expected_order"] - fits["order"] > ORDER_MISMATCH
+    fits = fits[off & (fits["r2"] >= ORDER_FIT_R2)]
+    found = []
+    for expected, own in fits.groupby("expected_order", sort=False):
+        items = [_Item(f.engine, f.integrator, f.case, f.order) for f in own.itertuples()]
+        found += _gather(
+            items,
+            "order",
+            lambda mine, e=expected: f"fitted order {_values(mine, '.2g')}, expected {e:g}",
+        )
+    return found
+
+
+def findings(
+    results: pd.DataFrame, outcomes: pd.DataFrame, scenes: dict[str, Scene], fits: pd.DataFrame
+) -> list[Finding]:
+    """Every rule's findings: verdicts, closed-form outcomes, energy, convergence orders."""
+    return [
+        *verdict_findings(results, scenes),
+        *outcome_findings(outcomes, results, scenes),
+        *energy_findings(results, scenes),
+        *order_findings(fits, scenes),
+    ]

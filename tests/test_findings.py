@@ -1,0 +1,152 @@
+"""The summary's findings follow from the results: alter a result and the findings change.
+
+Results, outcomes and fits are built by hand here (the columns the rules read), starting from a
+sweep in which every run is right; each test alters one thing and checks what is said.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cases.catalog import CATALOG
+from comparators.sweep import RESULT_COLUMNS, SweepResult
+from reports.findings import ENERGY_DRIFT_NOTE, RELATIVE_TOLERANCES, findings
+from reports.sections.summary import summary_section
+
+CASES = ("tumbling_box", "bounce", "slide")
+SCENES = {name: CATALOG[name] for name in CASES}
+PAIRS = (("mujoco", "Euler"), ("mujoco", "RK4"), ("reference", "splitting"))
+E = SCENES["bounce"].contact.restitution
+CLOSED_FORMS = {"bounce": ("rebound_ratio", E, "1"), "slide": ("stopping_distance", 0.9, "m")}
+
+
+def _runs(factor: float) -> list[dict]:
+    return [
+        {"case": c, "engine": e, "integrator": i, "dt": SCENES[c].dt * factor}
+        for c in CASES
+        for e, i in PAIRS
+    ]
+
+
+def right_sweep() -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
+    """(results, outcomes, fits) of a sweep at the default dt and twice it with nothing wrong."""
+    rows = _runs(1.0) + _runs(2.0)
+    results = pd.DataFrame(rows).assign(verdict="ok", energy_drift=1e-6)
+    outcomes = pd.DataFrame(
+        [
+            {**row, "quantity": q, "measured": v, "expected": v, "error": 0.0, "unit": u}
+            for row in rows
+            if row["case"] in CLOSED_FORMS
+            for q, v, u in [CLOSED_FORMS[row["case"]]]
+        ]
+    )
+    orders = {"Euler": 1, "RK4": 4, "splitting": 2}
+    fits = pd.DataFrame(
+        [
+            {"case": c, "engine": e, "integrator": i, "order": orders[i] + 0.02}
+            | {"expected_order": orders[i], "r2": 0.999}
+            for c in CASES
+            for e, i in PAIRS
+        ]
+    )
+    return results, outcomes, fits
+
+
+def at(table: pd.DataFrame, case: str, engine: str, integrator: str, factor: float = 1.0):
+    dt = SCENES[case].dt * factor
+    return (
+        (table["case"] == case)
+        & (table["engine"] == engine)
+        & (table["integrator"] == integrator)
+        & np.isclose(table["dt"], dt)
+    )
+
+
+def test_nothing_found_when_every_run_is_right():
+    assert findings(*right_sweep()[:2], SCENES, right_sweep()[2]) == []
+
+
+@pytest.mark.parametrize("verdict", ["diverged", "tunnelled", "jitter"])
+def test_a_verdict_at_the_default_dt_is_found(verdict):
+    results, outcomes, fits = right_sweep()
+    results.loc[at(results, "slide", "mujoco", "RK4"), "verdict"] = verdict
+    found = findings(results, outcomes, SCENES, fits)
+    assert [(f.kind, f.cases) for f in found] == [(verdict, ("slide",))]
+    assert found[0].text.startswith("**mujoco** RK4:") and verdict in found[0].text
+
+
+def test_a_verdict_at_another_dt_is_not_a_finding():
+    results, outcomes, fits = right_sweep()
+    results.loc[at(results, "slide", "mujoco", "RK4", 2.0), "verdict"] = "diverged"
+    assert findings(results, outcomes, SCENES, fits) == []
+
+
+def test_a_diverged_run_has_no_outcome_finding():
+    results, outcomes, fits = right_sweep()
+    results.loc[at(results, "bounce", "mujoco", "Euler"), "verdict"] = "diverged"
+    outcomes.loc[at(outcomes, "bounce", "mujoco", "Euler"), "measured"] = 1e9
+    assert [f.kind for f in findings(results, outcomes, SCENES, fits)] == ["diverged"]
+
+
+def test_a_rebound_at_e_squared_is_named():
+    results, outcomes, fits = right_sweep()
+    outcomes.loc[at(outcomes, "bounce", "reference", "splitting"), "measured"] = E**2
+    (found,) = findings(results, outcomes, SCENES, fits)
+    assert found.kind == "rebound_ratio" and found.cases == ("bounce",)
+    assert "at e²" in found.text and "**reference** splitting" in found.text
+
+
+@pytest.mark.parametrize("miss, found", [(0.5, False), (1.5, True), (-20.0, True)])
+def test_a_rebound_is_found_only_beyond_its_tolerance(miss, found):
+    """`miss` in units of the rebound tolerance; a miss of 20 of them is not e squared."""
+    results, outcomes, fits = right_sweep()
+    ratio = E * (1 + miss * RELATIVE_TOLERANCES["rebound_ratio"])
+    outcomes.loc[at(outcomes, "bounce", "mujoco", "RK4"), "measured"] = ratio
+    got = findings(results, outcomes, SCENES, fits)
+    assert len(got) == found
+    assert not any("e²" in f.text for f in got)
+
+
+def test_integrators_of_one_engine_share_a_finding():
+    results, outcomes, fits = right_sweep()
+    for integrator in ("Euler", "RK4"):
+        outcomes.loc[at(outcomes, "slide", "mujoco", integrator), "measured"] = 0.95
+    (found,) = findings(results, outcomes, SCENES, fits)
+    assert found.text.startswith("**mujoco** Euler, RK4: stopping distance")
+    assert "+6%" in found.text
+
+
+def test_energy_drift_is_a_finding_without_contact_only():
+    results, outcomes, fits = right_sweep()
+    drift = 2 * ENERGY_DRIFT_NOTE
+    results.loc[at(results, "tumbling_box", "mujoco", "Euler"), "energy_drift"] = drift
+    results.loc[at(results, "slide", "mujoco", "Euler"), "energy_drift"] = drift
+    (found,) = findings(results, outcomes, SCENES, fits)
+    assert found.kind == "energy" and found.cases == ("tumbling_box",)
+
+
+@pytest.mark.parametrize("order, found", [(1.0, True), (3.0, False)])
+def test_an_order_below_the_expected_is_found(order, found):
+    results, outcomes, fits = right_sweep()
+    mine = (fits["case"] == "tumbling_box") & (fits["integrator"] == "splitting")
+    fits.loc[mine, "order"] = order
+    got = findings(results, outcomes, SCENES, fits)
+    assert [f.kind for f in got] == (["order"] if found else [])
+
+
+def _result(results: pd.DataFrame, outcomes: pd.DataFrame) -> SweepResult:
+    table = results.reindex(columns=RESULT_COLUMNS)
+    return SweepResult(SCENES, table, {}, {}, 1.0, {}, "test", outcomes=outcomes)
+
+
+def test_the_summary_shows_verdicts_and_findings():
+    results, outcomes, fits = right_sweep()
+    text = "\n".join(summary_section(_result(results, outcomes), fits))
+    assert "Nothing to report" in text and "verdict-diverged" not in text
+    results.loc[at(results, "bounce", "mujoco", "Euler"), "verdict"] = "diverged"
+    text = "\n".join(summary_section(_result(results, outcomes), fits))
+    row = next(line for line in text.splitlines() if line.startswith("| [bounce](#case-bounce)"))
+    assert "verdict-diverged" in row and "Euler" in row and "verdict-ok" in row
+    assert "- **mujoco** Euler: diverged at the default dt ([bounce](#case-bounce))" in text
