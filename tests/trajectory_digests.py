@@ -66,7 +66,11 @@ def run_id(run) -> str:
 
 
 def host_fingerprint() -> str:
-    """CPU model and the builds whose kernels decide the last bits of a trajectory."""
+    """CPU model, the CPU numba compiles for (a virtual machine's model name, "AMD EPYC", hides
+    whether it has AVX-512: numba's code, numpy's kernels and libm's differ with it), and the
+    builds whose kernels decide the last bits of a trajectory."""
+    from llvmlite.binding import get_host_cpu_name
+
     model = platform.processor() or platform.machine()
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -76,6 +80,7 @@ def host_fingerprint() -> str:
     except OSError:
         pass
     versions = [f"{n} {metadata.version(n)}" for n in ("numpy", "numba", "mujoco", "pybullet")]
+    model = f"{model} ({get_host_cpu_name()})"
     return " | ".join([model, f"python {platform.python_version()}", *versions])
 
 
