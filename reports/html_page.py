@@ -21,6 +21,8 @@ table { border-collapse: collapse; margin: 0.8rem 0; font-size: 0.9rem; display:
 th, td { border: 1px solid #bbb; padding: 0.2rem 0.5rem; }
 th { background: #f0f0f0; }
 td { font-variant-numeric: tabular-nums; }
+th, td { text-align: left; }
+.num { text-align: right; }
 img { max-width: 100%; }
 code { background: #f4f4f4; padding: 0 0.2rem; }
 p, li { overflow-wrap: anywhere; }
@@ -59,6 +61,10 @@ def render_html(markdown_text: str, title: str = "rigidbench report") -> str:
     them, Markdown inside `<details>`) in a small styled page."""
     extensions = ["tables", "fenced_code", "toc", "md_in_html"]
     body = markdown.markdown(markdown_text, extensions=extensions)
+    # a class instead of the same style on each of ~13,000 cells: half the page's bytes
+    for cell in ("td", "th"):
+        body = body.replace(f'<{cell} style="text-align: left;">', f"<{cell}>")
+        body = body.replace(f'<{cell} style="text-align: right;">', f'<{cell} class="num">')
     return PAGE.format(title=html.escape(title), css=CSS + _verdict_css(), body=body)
 
 

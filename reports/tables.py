@@ -61,7 +61,18 @@ def markdown_table(df: pd.DataFrame, formats: dict[str, Callable] | None = None)
         numeric = pd.api.types.is_numeric_dtype(df[col]) and not pd.api.types.is_bool_dtype(df[col])
         cells[col] = df[col].map(formats.get(col, format_number if numeric else format_text))
         align.append("right" if numeric else "left")
-    return cells.to_markdown(index=False, disable_numparse=True, colalign=align)
+    # unpadded: padding every cell to its column's widest made the report half spaces
+    rule = {"right": "---:", "left": ":---"}
+    lines = [
+        _row(str(c) for c in df.columns),
+        _row(rule[a] for a in align),
+        *(_row(row) for row in cells.itertuples(index=False)),
+    ]
+    return "\n".join(lines)
+
+
+def _row(cells) -> str:
+    return "| " + " | ".join(cells) + " |"
 
 
 # ---- files ----------------------------------------------------------------------------------

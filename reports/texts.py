@@ -31,7 +31,8 @@ SUMMARY_LEGEND = (
     "passed through a plane); jitter (a body that should rest still moves); failed (no run). "
     "Where an engine's integrators differ, each verdict names its integrators. Most accurate at "
     "equal cost: the engine with the smallest orientation error at the most time budgets of "
-    "the case's work-precision plot (at how many, of how many)."
+    "the case's work-precision plot (at how many, of how many); – where fewer than two "
+    "engines have valid runs with an error to compare (a case swept at one dt has none)."
 )
 SUMMARY_OUTCOMES = (
     "How to read: per case, the closed-form outcome that says most about it, and what each "

@@ -276,7 +276,7 @@ def test_report_text(sweep, report):
     assert missing_references(out / "index.html") == []
     html = (out / "index.html").read_text()
     assert html.count("<img") == 6 and html.count("<table>") >= 6  # 5 figures, 1 animation
-    assert 'style="text-align: right;"' in html  # numbers right-aligned
+    assert '<td class="num">' in html  # numbers right-aligned
 
 
 def test_throughput_at_the_default_dt(sweep, report):
