@@ -316,6 +316,7 @@ def _measure_scaling(args, engines: list[str], console: Console):
 def _cmd_report(args, console: Console) -> None:
     from comparators.cache import ResultsCache
     from comparators.sweep import plan, run_sweep, warm_up
+    from reports.figures import animated_cases
     from reports.report import write_report
 
     start = time.perf_counter()
@@ -332,7 +333,8 @@ def _cmd_report(args, console: Console) -> None:
     # scaling after the sweep: none of the sweep's workers competes for the cores
     table = _measure_scaling(args, engines, console) if args.scaling else None
     command = " ".join(["rigidbench", *sys.argv[1:]])
-    write_report(result, out, command=command, scaling=table)
+    animated = animated_cases(result.scenes, full=not args.quick)
+    write_report(result, out, command=command, scaling=table, animated=animated)
     closing = _report_closing(result, out, time.perf_counter() - start)
     console.print(closing, markup=False, soft_wrap=True)  # one line, also on a narrow terminal
 

@@ -17,7 +17,7 @@ import pandas as pd
 
 from comparators.bench import throughput_from_results
 from comparators.engine import ENGINES
-from comparators.sweep import SweepResult
+from comparators.sweep import HARD_TAG, SweepResult
 from comparators.trajectory import Trajectory
 from reports import animation, plots
 from reports.convergence import MIN_FIT_POINTS
@@ -29,6 +29,16 @@ SCALING_FIGURE = ("scaling", "scaling")
 # story (the seed's cube flattening, the box's flip). Each takes about half a second to draw and
 # up to 0.8 MB: every case's would double the figures' size and add ~10 s of drawing.
 ANIMATED_CASES = ("seed_cube", "free_spin_cube", "tumbling_box", "dropped_cube")
+# The full report, whose budget has room for them, animates the hard cases as well (tag
+# `comparators.sweep.HARD_TAG`): where engines break, the motion shows how.
+
+
+def animated_cases(scenes: dict, full: bool) -> tuple[str, ...]:
+    """The cases a report animates: ANIMATED_CASES, and in a full report the hard ones."""
+    hard = [name for name, scene in scenes.items() if full and HARD_TAG in scene.tags]
+    return tuple(dict.fromkeys([*ANIMATED_CASES, *hard]))
+
+
 # Runs an animation shows beside each engine's default integrator: the blog's scheme on the
 # blog's scene, where its cube flattens.
 EXTRA_ANIMATED_RUNS = {"seed_cube": (("reference", "seed"),)}

@@ -21,6 +21,7 @@ from comparators.engine import ENGINES
 from comparators.sweep import SweepResult
 from reports.convergence import fit_orders
 from reports.figures import (
+    ANIMATED_CASES,
     FIGURES_DIR,
     write_case_figures,
     write_scaling_figure,
@@ -78,9 +79,14 @@ def render_markdown(
 
 
 def write_report(
-    result: SweepResult, out: Path, command: str, scaling: pd.DataFrame | None = None
+    result: SweepResult,
+    out: Path,
+    command: str,
+    scaling: pd.DataFrame | None = None,
+    animated: tuple[str, ...] = ANIMATED_CASES,
 ) -> dict[str, Path]:
-    """Write results, figures, report.md and index.html into `out`, and with a `scaling` table
+    """Write results, figures (the animations of the `animated` cases among them), report.md
+    and index.html into `out`, and with a `scaling` table
     (`comparators.scaling.measure_scaling`) scaling.csv, figures/scaling.png and the Scaling
     section; returns them by name relative to `out` ("results.csv",
     "figures/tumbling_box_drift.png", ...)."""
@@ -89,7 +95,8 @@ def write_report(
     written = write_results(result.results, out)
     written |= write_outcomes(result.outcomes, out)
     fits = fit_orders(result.results, expected_orders(result))
-    figures = write_case_figures(result, fits, out) | write_throughput_figure(result, out)
+    figures = write_case_figures(result, fits, out, animated=animated)
+    figures |= write_throughput_figure(result, out)
     if scaling is not None:
         written |= write_scaling(scaling, out)
         figures |= write_scaling_figure(scaling, out)

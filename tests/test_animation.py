@@ -21,7 +21,7 @@ from reference_sim.model import seed_initial_state
 from reference_sim.seed import seed_step
 from reports import animation
 from reports.camera import scene_extent
-from reports.figures import ANIMATED_CASES, animated_runs
+from reports.figures import ANIMATED_CASES, animated_cases, animated_runs
 from reports.html_page import missing_references
 from reports.report import write_report
 
@@ -339,3 +339,9 @@ def test_the_report_animates_each_core_case(tmp_path):
     with Image.open(tmp_path / "figures" / "seed_cube_motion.gif") as gif:
         assert gif.n_frames == 11  # samples every 0.1 s over 1 s
     assert missing_references(tmp_path / "index.html") == []
+
+
+def test_a_full_report_animates_the_hard_cases_too():
+    scenes = {name: CATALOG[name] for name in ("tumbling_box", "high_spin", "free_spin_cube")}
+    assert animated_cases(scenes, full=False) == ANIMATED_CASES
+    assert animated_cases(scenes, full=True) == (*ANIMATED_CASES, "high_spin")
