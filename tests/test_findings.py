@@ -127,7 +127,7 @@ def test_energy_drift_is_a_finding_without_contact_only():
     assert found.kind == "energy" and found.cases == ("tumbling_box",)
 
 
-@pytest.mark.parametrize("order, found", [(1.0, True), (3.0, False)])
+@pytest.mark.parametrize("order, found", [(1.0, True), (3.0, False), (-1.5, False)])
 def test_an_order_below_the_expected_is_found(order, found):
     results, outcomes, fits = right_sweep()
     mine = (fits["case"] == "tumbling_box") & (fits["integrator"] == "splitting")
