@@ -56,7 +56,6 @@ class GateFile(pytest.File):
 
     def collect(self):
         from cases.errors import InputError
-        from comparators.engine import ENGINES
         from gates.evaluate import plan_checks
         from gates.spec import load_gate_file
 
@@ -64,27 +63,28 @@ class GateFile(pytest.File):
             checks = plan_checks(load_gate_file(self.path), _option(self.config, "gates_engine"))
         except InputError as err:
             raise self.CollectError(str(err)) from None
-        self.checks, self.results = checks, None
+        self.checks, self.runnable, self.results = checks, [], None
         for index, check in enumerate(checks):
             name = f"{check.gate.name}[{check.id}]"
             item = GateItem.from_parent(self, name=name, index=index, check=check)
-            missing = ENGINES[check.engine].missing
-            if missing:
-                item.add_marker(pytest.mark.skip(reason=f"engine {check.engine!r}: {missing}"))
+            why_not = _cannot_run_here(check)
+            if why_not:
+                item.add_marker(pytest.mark.skip(reason=why_not))
+            else:
+                self.runnable.append(index)
             yield item
 
     def row(self, index: int):
-        """The evaluated row of check `index`; the file's checks on installed engines are
-        evaluated on the first call."""
+        """The evaluated row of check `index`: the file's checks that can run here are
+        evaluated together on the first call."""
         if self.results is None:
             from comparators.cache import ResultsCache
-            from comparators.engine import ENGINES
             from gates.evaluate import evaluate_checks
 
-            runnable = [c for c in self.checks if not ENGINES[c.engine].missing]
-            table = evaluate_checks(runnable, ResultsCache(_cache_dir(self.config)), progress=False)
-            ids = [i for i, c in enumerate(self.checks) if not ENGINES[c.engine].missing]
-            self.results = dict(zip(ids, table.itertuples(), strict=True))
+            runnable = [self.checks[i] for i in self.runnable]
+            cache = ResultsCache(_cache_dir(self.config))
+            table = evaluate_checks(runnable, cache, progress=False)
+            self.results = dict(zip(self.runnable, table.itertuples(), strict=True))
         return self.results[index]
 
 
@@ -99,8 +99,6 @@ class GateItem(pytest.Item):
         from gates.output import failure_message
 
         row = self.parent.row(self.index)
-        if row.passed is None:
-            pytest.skip(row.reason)
         if not row.passed:
             raise GateCheckFailed(failure_message(row))
 
@@ -110,7 +108,20 @@ class GateItem(pytest.Item):
         return super().repr_failure(excinfo, style)
 
     def reportinfo(self):
-        return self.path, None, self.name
+        return self.path, 0, self.name  # a line (the file's first): pytest places skips by it
+
+
+def _cannot_run_here(check) -> str | None:
+    """Why a check is skipped here: its engine is not installed, or does not model the case."""
+    from comparators.engine import ENGINES, unsupported
+
+    engine = ENGINES[check.engine]
+    if engine.missing:
+        return f"engine {check.engine!r}: {engine.missing}"
+    refusal = unsupported(engine, check.gate.scene)
+    if refusal:
+        return f"engine {check.engine!r} cannot run {check.gate.scene.name!r}: {refusal}"
+    return None
 
 
 def _option(config, name: str):

@@ -146,3 +146,68 @@ def test_rigidbench_gate_checks_the_same_file(python, project):
     assert "3 checks of 2 gate(s): 2 passed, 1 failed" in done.stdout
     assert re.search(r"tumble_exact .*orientation_error_deg .* <= 1e-06 .* FAIL", done.stdout)
     assert (project / "gates.xml").exists() and (project / "rigidbench-report" / "cache").is_dir()
+
+
+# A user's conftest adding two engines: one not installed here, one without contact.
+ENGINES_CONFTEST = """
+from comparators.engine import ENGINES
+
+
+class Absent:
+    name, integrators, default_integrator, orders = "absent", ("x",), "x", {"x": 1}
+    missing = "pip install absent-engine"
+
+
+class FreeOnly(Absent):
+    name, missing = "free_only", None
+
+    def unsupported(self, scene):
+        return "contact is not modelled" if scene.has_contact else None
+
+
+ENGINES["absent"], ENGINES["free_only"] = Absent(), FreeOnly()
+"""
+SKIPPED_GATES = """
+[[gates]]
+name = "elsewhere"
+case = "free_spin_cube"
+engine = "absent"
+[gates.limits]
+energy_drift = { max = 1e-9 }
+
+[[gates]]
+name = "no_contact"
+case = "bounce"
+engine = "free_only"
+[gates.limits]
+"rebound_ratio.error" = { abs_max = 0.01 }
+"""
+
+
+def test_checks_that_cannot_run_here_are_skipped_with_the_reason(python, project):
+    (project / "conftest.py").write_text(ENGINES_CONFTEST)
+    (project / "ci" / "gates" / "engine.toml").write_text(SKIPPED_GATES)
+    done = command(python, "-m", "pytest", "-rs", "ci", cwd=project)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "2 skipped" in done.stdout
+    assert "engine 'absent': pip install absent-engine" in done.stdout
+    assert "engine 'free_only' cannot run 'bounce': contact is not modelled" in done.stdout
+
+
+def test_gates_engine_retargets_every_gate(python, project):
+    done = command(python, "-m", "pytest", "-v", "--gates-engine", "pybullet", "ci", cwd=project)
+    # tumble_exact names MuJoCo's Euler: pybullet has no such integrator, so the file is bad
+    # input for this engine, said in one collection error
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert "gate 'tumble_exact': key 'integrator': unknown integrator 'Euler' for engine" in (
+        done.stdout
+    )
+    (project / "ci" / "gates" / "engine.toml").write_text(
+        USER_GATES.split('[[gates]]\nname = "tumble')[0]
+    )
+    done = command(python, "-m", "pytest", "-v", "--gates-engine", "pybullet", "ci", cwd=project)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert (
+        "spin_keeps_L[free_spin_cube-pybullet-maximal-dt=0.01-angular_momentum_drift] PASSED"
+        in (done.stdout)
+    )
