@@ -24,11 +24,10 @@ from cases.scene import Scene
 from comparators.cache import ResultsCache
 from comparators.engine import ENGINES
 from comparators.trajectory import atomic_path
+from gates import DEFAULT_SLACK
 from gates.evaluate import RunGroup, measure_groups
 from gates.spec import WITHOUT_EXPECTED, load_gate_file
 
-# The regression factor: an engine may get this much worse than recorded before its gate fails.
-DEFAULT_SLACK = 1.5
 # Differences below these are noise, not a regression: a recorded limit is at least the floor.
 FLOORS = {
     # relative drifts: rounding of ~1e-16 per step over up to 1e5 steps gives ~1e-11, and another

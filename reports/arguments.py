@@ -9,7 +9,7 @@ import os
 from pathlib import Path
 
 from comparators.bench import BENCH_DURATION_S, MIN_REPEATS
-from gates.record import DEFAULT_SLACK
+from gates import DEFAULT_SLACK
 
 # The report's folder, in the directory the command runs in: all a report writes (the results
 # cache too, in OUT/cache) goes there and nowhere else.
@@ -161,19 +161,25 @@ def _add_gate(sub) -> None:
     gate.add_argument(
         "paths", nargs="*", metavar="FILE_OR_DIR", help="gate files, or directories of them"
     )
-    gate.add_argument("--engine", help="run every gate on this engine (default: each gate's)")
+    gate.add_argument(
+        "--engine", metavar="NAME", help="run every gate on this engine (default: each gate's)"
+    )
     gate.add_argument(
         "--physics",
         action="store_true",
         help="also the physics gates shipped with rigidbench (any correct engine passes them)",
     )
-    gate.add_argument("--junit", help="also write every check as a JUnit XML test case, FILE.xml")
+    gate.add_argument(
+        "--junit", metavar="FILE.xml", help="also write every check as a JUnit XML test case"
+    )
     gate.add_argument(
         "--record",
         metavar="OUT.toml",
         help="instead, write gates from today's measurements of --cases on --engine",
     )
-    gate.add_argument("--cases", nargs="+", help="with --record: catalog names or .toml files")
+    gate.add_argument(
+        "--cases", nargs="+", metavar="CASE", help="with --record: catalog names or .toml files"
+    )
     gate.add_argument(
         "--slack",
         type=parse_slack,
