@@ -236,7 +236,8 @@ class _Once:
         yield from ((item, self.failed[item]) for item in items if item in self.failed)
         fresh = [item for item in items if item not in self.failed]
         for item, out in self.inner.map_unordered(fn, fresh):
-            if out[0] is None:
+            trajectory, _, _ = out  # `comparators.sweep.execute`'s (trajectory, error, analysis)
+            if trajectory is None:
                 self.failed[item] = out
             yield item, out
 
