@@ -108,6 +108,8 @@ def _runs_for(result: SweepResult, check: Check) -> tuple[pd.DataFrame, pd.DataF
     own = exact_trajectory_available(gate.scene)  # errors against the exact motion
     if measure in REFERENCE_MEASURES and not own and min(gate.dts) != runs["dt"].min():
         return "errors against another reference"
+    if gate.scene.duration > swept.duration + TIME_MATCH:
+        return f"needs runs of {gate.scene.duration:g} s, swept {swept.duration:g} s"
     shorter = gate.scene.duration < swept.duration - TIME_MATCH
     if shorter and (measure in TIMING_MEASURES or not own and measure in REFERENCE_MEASURES):
         return f"needs runs of {gate.scene.duration:g} s"
@@ -132,15 +134,16 @@ def _runs_for(result: SweepResult, check: Check) -> tuple[pd.DataFrame, pd.DataF
 
 def physics_checks(result: SweepResult, gates: list[Gate] | None = None) -> pd.DataFrame:
     """One `gates.evaluate.CHECK_COLUMNS` row per check of `gates` (default: the physics
-    gates) on every engine the sweep ran, judged on the sweep's runs; a check the sweep holds no
-    runs for has `passed` None and the reason starting NOT_MEASURED."""
+    gates) on every engine and integrator the sweep ran, judged on the sweep's runs; a check the
+    sweep holds no runs for has `passed` None and the reason starting NOT_MEASURED."""
     gates = physics_gates() if gates is None else gates
-    engines = sorted(result.results["engine"].unique(), key=lambda e: plots.pair_rank((e, "")))
+    swept = set(zip(result.results["engine"], result.results["integrator"], strict=True))
+    engines = sorted({e for e, _ in swept if e in ENGINES}, key=lambda e: plots.pair_rank((e, "")))
     rows = []
     for engine in engines:
-        if engine not in ENGINES:
-            continue
         for check in plan_checks(gates, engine):
+            if (engine, check.integrator) not in swept:
+                continue  # an integrator the sweep left out: no column of its own
             runs = _runs_for(result, check)
             if isinstance(runs, str):
                 dt = check.dt
