@@ -328,7 +328,8 @@ def _value(check: Check, run: pd.Series, outcomes: pd.DataFrame) -> tuple[float,
     quantity, part = measure_parts(measure)
     found = outcomes[outcomes["quantity"] == quantity]
     if found.empty:
-        known = ", ".join(outcomes["quantity"]) or "nothing"
+        known = ", ".join(outcomes["quantity"])
+        known = f"it measures {known}" if known else "nor any outcome"
         return math.nan, f"case {check.gate.scene.name!r} measures no {quantity!r} ({known})"
     measured, expected, error = found.iloc[0][["measured", "expected", "error"]].astype(float)
     if math.isnan(measured):

@@ -9,6 +9,7 @@ import os
 from pathlib import Path
 
 from comparators.bench import BENCH_DURATION_S, MIN_REPEATS
+from gates import DEFAULT_SLACK
 
 # The report's folder, in the directory the command runs in: all a report writes (the results
 # cache too, in OUT/cache) goes there and nowhere else.
@@ -144,8 +145,58 @@ def _add_bench(sub) -> None:
     ben.add_argument("--out", help="write the table to FILE.csv and its plot to FILE.png")
 
 
+def parse_slack(text: str) -> float:
+    """argparse type: a finite number >= 1 (a limit below today's value fails today)."""
+    value = parse_positive_number(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a number >= 1, got {text!r}")
+    return value
+
+
+def _add_gate(sub) -> None:
+    gate = sub.add_parser(
+        "gate",
+        help="check the limits of gate files on the suite's measures; exit 1 when any fails",
+    )
+    gate.add_argument(
+        "paths", nargs="*", metavar="FILE_OR_DIR", help="gate files, or directories of them"
+    )
+    gate.add_argument(
+        "--engine", metavar="NAME", help="run every gate on this engine (default: each gate's)"
+    )
+    gate.add_argument(
+        "--physics",
+        action="store_true",
+        help="also the physics gates shipped with rigidbench (any correct engine passes them)",
+    )
+    gate.add_argument(
+        "--junit", metavar="FILE.xml", help="also write every check as a JUnit XML test case"
+    )
+    gate.add_argument(
+        "--record",
+        metavar="OUT.toml",
+        help="instead, write gates from today's measurements of --cases on --engine",
+    )
+    gate.add_argument(
+        "--cases", nargs="+", metavar="CASE", help="with --record: catalog names or .toml files"
+    )
+    gate.add_argument(
+        "--slack",
+        type=parse_slack,
+        default=DEFAULT_SLACK,
+        help=f"with --record: limits at today's value times this plus a noise floor "
+        f"(default {DEFAULT_SLACK:g})",
+    )
+    gate.add_argument(
+        "--cache", help=f"results cache directory (default: ./{DEFAULT_OUT}/cache, the report's)"
+    )
+    gate.add_argument(
+        "--jobs", type=parse_count, default=os.cpu_count() or 1, help="local worker processes"
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
-    """The parser of every command: list, engines, show, run, animate, report, bench."""
+    """The parser of every command: list, engines, show, run, animate, report, bench, gate."""
     parser = argparse.ArgumentParser(
         prog="rigidbench", description="Validation and benchmark suite for rigid-body physics."
     )
@@ -157,4 +208,5 @@ def build_parser() -> argparse.ArgumentParser:
     _add_animate(sub)
     _add_report(sub)
     _add_bench(sub)
+    _add_gate(sub)
     return parser

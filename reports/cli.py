@@ -353,6 +353,124 @@ def _report_closing(result, out: Path, elapsed_s: float) -> str:
     )
 
 
+def _junit_out(text: str | None) -> Path | None:
+    """The gate's --junit FILE.xml, checked before any run: a .xml in an existing directory."""
+    if not text:
+        return None
+    out = Path(text)
+    if out.suffix.lower() != ".xml":
+        raise InputError(f"--junit {text!r}: expected a file name ending in .xml")
+    if not out.parent.is_dir():
+        raise InputError(f"--junit {text!r}: directory {str(out.parent)!r} missing")
+    return out
+
+
+def _gate_paths(args) -> list[Path]:
+    """The gate files and directories to check: FILE_OR_DIR..., and with --physics the
+    package's physics gates."""
+    from gates import PHYSICS_DIR
+
+    paths = [Path(p) for p in args.paths]
+    if args.physics:
+        if not PHYSICS_DIR.is_dir():
+            raise InputError(f"--physics: this rigidbench ships no physics gates ({PHYSICS_DIR})")
+        paths.append(PHYSICS_DIR)
+    if not paths:
+        raise InputError(
+            "gate: expected gate files or directories (FILE_OR_DIR...), --physics, "
+            "or --record OUT.toml --cases ... --engine NAME"
+        )
+    return paths
+
+
+def _gate_console_table(checks) -> Table:
+    """The checks for the terminal, one row each (why a check has no measurement follows the
+    table, `_gate_reasons`)."""
+    from gates.output import format_margin, format_measured, result_word
+
+    shown = Table(title="gates")
+    for col in ("gate", "run", "measure", "measured", "limit", "margin", "result"):
+        right = col in ("measured", "margin")
+        shown.add_column(col, justify="right" if right else "left", overflow="fold")
+    for row in checks.itertuples():
+        dt = "all dt" if math.isnan(row.dt) else f"dt={row.dt:g}"
+        cells = [row.gate, f"{row.engine} {row.integrator} {dt}", row.measure]
+        cells += [format_measured(row.measured), row.limit, format_margin(row.margin)]
+        cells.append(result_word(row.passed))
+        shown.add_row(*map(Text, cells))  # Text: brackets in a name are no markup
+    return shown
+
+
+def _gate_reasons(checks) -> list[str]:
+    """One line per check that failed or was not checked for a reason: which, and why."""
+    from gates.output import failure_message, result_word
+
+    said = checks[checks["reason"] != ""]
+    return [f"{result_word(row.passed)}: {failure_message(row)}" for row in said.itertuples()]
+
+
+def _cmd_gate(args, console: Console) -> int:
+    from gates.spec import load_gates
+
+    start = time.perf_counter()
+    if args.record:
+        return _record_gates(args, console, start)
+    if args.cases:
+        raise InputError("--cases: only with --record OUT.toml (the gates name their cases)")
+    junit = _junit_out(args.junit)
+    gates = load_gates(_gate_paths(args))
+    return _check_gates(args, console, gates, junit, start)
+
+
+def _check_gates(args, console: Console, gates: list, junit: Path | None, start: float) -> int:
+    """Evaluate `gates`, print the table and the closing line; 1 when a check failed."""
+    from comparators.cache import ResultsCache
+    from comparators.sweep import LocalExecutor
+    from gates.evaluate import evaluate, plan_checks
+    from gates.output import closing_line, write_junit
+    from reports.arguments import DEFAULT_OUT
+
+    plan_checks(gates, args.engine)  # a missing engine or integrator: before any run
+    cache = ResultsCache(Path(args.cache) if args.cache else DEFAULT_OUT / "cache")
+    executor = LocalExecutor(args.jobs)
+    checks = evaluate(gates, cache, args.engine, executor=executor, console=console)
+    console.print(_gate_console_table(checks))
+    for line in _gate_reasons(checks):
+        console.print(line, markup=False, soft_wrap=True)
+    closing = closing_line(checks, time.perf_counter() - start)
+    if junit is not None:
+        write_junit(checks, junit)
+        closing += f"; wrote {junit.as_posix()}"
+    console.print(closing, markup=False, soft_wrap=True)
+    return 1 if (checks["passed"] == False).any() else 0  # noqa: E712 (None: not checked)
+
+
+def _record_gates(args, console: Console, start: float) -> int:
+    """gate --record OUT.toml --cases ... --engine NAME [--slack S]: write the gates, then
+    check them as `gate OUT.toml` would (today's values are within their limits)."""
+    from comparators.cache import ResultsCache
+    from comparators.sweep import LocalExecutor
+    from gates.record import check_out, record
+    from gates.spec import load_gates
+    from reports.arguments import DEFAULT_OUT
+
+    out = Path(args.record)
+    check_out(out)
+    if args.paths or args.physics or args.junit:
+        raise InputError("--record writes gates: expected no FILE_OR_DIR, --physics or --junit")
+    if not args.cases or not args.engine:
+        raise InputError("--record OUT.toml: expected --cases CASE... and --engine NAME")
+    if get_engine(args.engine).missing:
+        raise InputError(f"engine {args.engine!r} is unavailable: {ENGINES[args.engine].missing}")
+    scenes = list(zip(args.cases, _scenes(args.cases), strict=True))
+    cache = ResultsCache(Path(args.cache) if args.cache else DEFAULT_OUT / "cache")
+    executor = LocalExecutor(args.jobs)
+    count = record(scenes, args.engine, out, cache, args.slack, executor=executor, console=console)
+    console.print(f"gate: recorded {count} gates in {out.as_posix()}", markup=False, soft_wrap=True)
+    args.engine = None  # the recorded gates name their engine
+    return _check_gates(args, console, load_gates([out]), None, start)
+
+
 COMMANDS = {
     "list": _cmd_list,
     "engines": _cmd_engines,
@@ -361,6 +479,7 @@ COMMANDS = {
     "animate": _cmd_animate,
     "report": _cmd_report,
     "bench": _cmd_bench,
+    "gate": _cmd_gate,
 }
 
 
@@ -369,7 +488,7 @@ def main(argv: list[str] | None = None) -> int:
     terminal = terminal_stream()
     console = Console(file=terminal)
     try:
-        COMMANDS[args.command](args, console)
+        status = COMMANDS[args.command](args, console) or 0
     except InputError as exc:
         print(f"rigidbench: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -382,7 +501,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if terminal is not sys.stdout:
             terminal.close()
-    return 0
+    return status
 
 
 if __name__ == "__main__":

@@ -362,7 +362,7 @@ def test_outcome_measures_and_what_a_case_does_not_measure(tmp_path, cache):
     assert rows.loc[["rebound_ratio", "rebound_ratio.error"], "passed"].all()
     missing = rows.loc["stopping_distance"]
     assert not missing["passed"] and missing["reason"].startswith(
-        "case 'bounce' measures no 'stopping_distance' (rest_com_height, rebound_ratio"
+        "case 'bounce' measures no 'stopping_distance' (it measures rest_com_height, rebound_ratio"
     )
     # one dt of a case without an exact solution: its own reference, no pose error
     assert rows.loc["position_error", "reason"] == (
