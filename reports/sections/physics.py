@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -19,11 +20,12 @@ import pandas as pd
 from cases.exact import exact_trajectory_available
 from cases.toml_io import scene_to_toml
 from comparators.engine import ENGINES
-from comparators.sweep import RESULT_COLUMNS, RunSpec, SweepResult, analyse, empty_outcomes
+from comparators.summary import summarize
+from comparators.sweep import RESULT_COLUMNS, RunSpec, SweepResult, empty_outcomes, run_outcomes
 from comparators.trajectory import Trajectory
 from gates import PHYSICS_DIR
 from gates.evaluate import CHECK_COLUMNS, Check, check_from_runs, plan_checks
-from gates.spec import Gate, load_gates
+from gates.spec import Gate, is_outcome_measure, load_gates
 from reports import plots, texts
 from reports.sections.layout import section
 from reports.tables import EMPTY_CELL, escape_markdown, markdown_table, pair_label
@@ -71,65 +73,113 @@ def _cut(traj: Trajectory, duration: float) -> Trajectory:
 
 def _cut_runs(result: SweepResult, runs: pd.DataFrame, gate: Gate):
     """(results, outcomes) rows of `runs` (sweep rows, each with a trajectory) measured over
-    the gate's shorter duration."""
+    the gate's shorter duration; outcomes only where one of the gate's limits reads them."""
+    wanted = any(is_outcome_measure(limit.measure) for limit in gate.limits)
     rows, measured = [], []
     for run in runs.itertuples():
-        spec = RunSpec(gate.scene, run.engine, run.integrator, run.dt)
         row = {c: getattr(run, c) for c in RESULT_COLUMNS}
-        summary, outcomes = analyse(spec, _cut(result.trajectories[run.key], gate.scene.duration))
-        row |= {k: v for k, v in summary.items() if k in row and k != "key"}
+        traj = _cut(result.trajectories[run.key], gate.scene.duration)
+        row |= {k: v for k, v in summarize(traj, gate.scene).items() if k in row and k != "key"}
         row["duration"] = gate.scene.duration
         rows.append(row)
-        measured.append(outcomes)
+        if wanted:
+            measured.append(
+                run_outcomes(RunSpec(gate.scene, run.engine, run.integrator, run.dt), traj)
+            )
     frames = [m for m in measured if len(m)]
     outcomes = pd.concat(frames, ignore_index=True) if frames else empty_outcomes()
     return pd.DataFrame(rows, columns=RESULT_COLUMNS), outcomes
 
 
-def _runs_for(result: SweepResult, check: Check) -> tuple[pd.DataFrame, pd.DataFrame] | str:
-    """The sweep's (results, outcomes) rows `check` is judged on: its case, engine and
-    integrator at each dt of its gate; or why the sweep does not hold them."""
-    gate = check.gate
-    swept = result.scenes.get(gate.scene.name)
-    if not _same_case(gate, swept):
-        return f"case {gate.scene.name!r} not swept"
-    results = result.results
-    runs = results[
-        (results["case"] == gate.scene.name)
-        & (results["engine"] == check.engine)
-        & (results["integrator"] == check.integrator)
-    ]
-    at = {dt: runs[np.isclose(runs["dt"], dt, rtol=1e-9, atol=0.0)] for dt in gate.dts}
-    missing = [f"{dt:g}" for dt, found in at.items() if found.empty]
-    if missing:
-        return f"no run at dt {', '.join(missing)} s"
-    runs = pd.concat(at.values()).assign(dt=list(gate.dts))  # the gate's dts, exactly
-    measure = check.limit.measure
+@dataclass(frozen=True)
+class _GateRuns:
+    """The sweep's runs of one gate on one engine and integrator, at each of its dts."""
+
+    results: pd.DataFrame
+    outcomes: pd.DataFrame
+    shorter: bool  # read from the first seconds of longer runs
+
+
+class _Sweep:
+    """A sweep's runs indexed by case, engine and integrator, and what each gate reads of
+    them, gathered once per gate, engine and integrator."""
+
+    KEYS = ["case", "engine", "integrator"]
+
+    def __init__(self, result: SweepResult):
+        self.result = result
+        self.results = dict(iter(result.results.groupby(self.KEYS, sort=False)))
+        self.outcomes = dict(iter(result.outcomes.groupby(self.KEYS, sort=False)))
+        self.pairs = {(e, i) for _, e, i in self.results}
+        self._gathered: dict[tuple, _GateRuns | str] = {}
+        self._swept: dict[Gate, bool] = {}
+
+    def runs(self, gate: Gate, engine: str, integrator: str) -> _GateRuns | str:
+        """The gate's runs on `engine` and `integrator`, or why the sweep does not hold them."""
+        key = (gate, engine, integrator)
+        if key not in self._gathered:
+            self._gathered[key] = self._gather(gate, engine, integrator)
+        return self._gathered[key]
+
+    def _gather(self, gate: Gate, engine: str, integrator: str) -> _GateRuns | str:
+        swept = self.result.scenes.get(gate.scene.name)
+        if gate not in self._swept:
+            self._swept[gate] = _same_case(gate, swept)
+        if not self._swept[gate]:
+            return f"case {gate.scene.name!r} not swept"
+        key = (gate.scene.name, engine, integrator)
+        runs = self.results.get(key, self.result.results.iloc[:0])
+        at = {dt: runs[np.isclose(runs["dt"], dt, rtol=1e-9, atol=0.0)] for dt in gate.dts}
+        missing = [f"{dt:g}" for dt, found in at.items() if found.empty]
+        if missing:
+            return f"no run at dt {', '.join(missing)} s"
+        runs = pd.concat(at.values()).assign(dt=list(gate.dts))  # the gate's dts, exactly
+        if gate.scene.duration > swept.duration + TIME_MATCH:
+            return f"needs runs of {gate.scene.duration:g} s, swept {swept.duration:g} s"
+        shorter = gate.scene.duration < swept.duration - TIME_MATCH
+        failed = runs["verdict"].str.startswith("failed")
+        if shorter and not runs[~failed]["key"].isin(list(self.result.trajectories)).all():
+            return "a run without its trajectory"
+        if shorter:
+            cut, outcomes = _cut_runs(self.result, runs[~failed], gate)
+            return _GateRuns(pd.concat([cut, runs[failed]], ignore_index=True), outcomes, True)
+        outcomes = self.outcomes.get(key, empty_outcomes())
+        outcomes = pd.concat(
+            [
+                outcomes[np.isclose(outcomes["dt"], dt, rtol=1e-9, atol=0.0)].assign(dt=dt)
+                for dt in at
+            ]
+        )
+        return _GateRuns(runs, outcomes, False)
+
+
+def _unmeasurable(check: Check, runs: _GateRuns) -> str | None:
+    """Why the sweep's runs do not give `check`'s measure, else None: errors against another
+    reference than the gate's own runs would have, or timings of a run cut short."""
+    gate, measure = check.gate, check.limit.measure
     own = exact_trajectory_available(gate.scene)  # errors against the exact motion
-    if measure in REFERENCE_MEASURES and not own and min(gate.dts) != runs["dt"].min():
+    finest = runs.results["dt"].min()
+    if measure in REFERENCE_MEASURES and not own and (runs.shorter or min(gate.dts) != finest):
         return "errors against another reference"
-    if gate.scene.duration > swept.duration + TIME_MATCH:
-        return f"needs runs of {gate.scene.duration:g} s, swept {swept.duration:g} s"
-    shorter = gate.scene.duration < swept.duration - TIME_MATCH
-    if shorter and (measure in TIMING_MEASURES or not own and measure in REFERENCE_MEASURES):
+    if runs.shorter and measure in TIMING_MEASURES:
         return f"needs runs of {gate.scene.duration:g} s"
-    if shorter and not runs["key"].isin(list(result.trajectories)).all():
-        return "a run without its trajectory"
-    outcomes = result.outcomes
-    outcomes = outcomes[
-        (outcomes["case"] == gate.scene.name)
-        & (outcomes["engine"] == check.engine)
-        & (outcomes["integrator"] == check.integrator)
-    ]
-    if shorter:
-        valid = runs[~runs["verdict"].str.startswith("failed")]
-        cut, cut_outcomes = _cut_runs(result, valid, gate)
-        failed = runs[runs["verdict"].str.startswith("failed")]
-        return pd.concat([cut, failed], ignore_index=True), cut_outcomes
-    outcomes = pd.concat(
-        [outcomes[np.isclose(outcomes["dt"], dt, rtol=1e-9, atol=0.0)].assign(dt=dt) for dt in at]
-    )
-    return runs, outcomes
+    return None
+
+
+def _not_measured(check: Check, why: str) -> dict:
+    """The `CHECK_COLUMNS` row of a check the sweep cannot judge."""
+    return dict.fromkeys(CHECK_COLUMNS, np.nan) | {
+        "file": str(check.gate.file),
+        "gate": check.gate.name,
+        "case": check.gate.scene.name,
+        "engine": check.engine,
+        "integrator": check.integrator,
+        "dt": check.dt,
+        "measure": check.limit.measure,
+        "limit": check.limit_text,
+        "passed": None,
+        "reason": f"{NOT_MEASURED}: {why}",
+    }
 
 
 def physics_checks(result: SweepResult, gates: list[Gate] | None = None) -> pd.DataFrame:
@@ -137,31 +187,19 @@ def physics_checks(result: SweepResult, gates: list[Gate] | None = None) -> pd.D
     gates) on every engine and integrator the sweep ran, judged on the sweep's runs; a check the
     sweep holds no runs for has `passed` None and the reason starting NOT_MEASURED."""
     gates = physics_gates() if gates is None else gates
-    swept = set(zip(result.results["engine"], result.results["integrator"], strict=True))
-    engines = sorted({e for e, _ in swept if e in ENGINES}, key=lambda e: plots.pair_rank((e, "")))
+    sweep = _Sweep(result)
+    engines = {e for e, _ in sweep.pairs if e in ENGINES}
     rows = []
-    for engine in engines:
+    for engine in sorted(engines, key=lambda e: plots.pair_rank((e, ""))):
         for check in plan_checks(gates, engine):
-            if (engine, check.integrator) not in swept:
+            if (engine, check.integrator) not in sweep.pairs:
                 continue  # an integrator the sweep left out: no column of its own
-            runs = _runs_for(result, check)
-            if isinstance(runs, str):
-                dt = check.dt
-                row = dict.fromkeys(CHECK_COLUMNS, np.nan) | {
-                    "file": str(check.gate.file),
-                    "gate": check.gate.name,
-                    "case": check.gate.scene.name,
-                    "engine": engine,
-                    "integrator": check.integrator,
-                    "dt": dt,
-                    "measure": check.limit.measure,
-                    "limit": check.limit_text,
-                    "passed": None,
-                    "reason": f"{NOT_MEASURED}: {runs}",
-                }
-                rows.append(row)
+            runs = sweep.runs(check.gate, engine, check.integrator)
+            why = runs if isinstance(runs, str) else _unmeasurable(check, runs)
+            if why is not None:
+                rows.append(_not_measured(check, why))
                 continue
-            rows.append(check_from_runs(check, *runs))
+            rows.append(check_from_runs(check, runs.results, runs.outcomes))
     return pd.DataFrame(rows, columns=CHECK_COLUMNS)
 
 
