@@ -158,16 +158,12 @@ def evaluate_checks(
     console: Console | None = None,
 ) -> pd.DataFrame:
     """`evaluate` of planned checks on available engines (a pytest item is one check)."""
-    groups: dict[tuple, list[Check]] = {}
+    used: dict[tuple[Gate, str], set[str]] = {}  # the integrators of each gate and engine
     for check in checks:
-        groups.setdefault((check.gate, check.engine), []).append(check)
-    runs = {
-        key: RunGroup.of(gate, engine, {c.integrator for c in members})
-        for key, members in groups.items()
-        for gate, engine in [key]
-    }
-    measured = measure_groups(list(runs.values()), cache, progress, executor, console)
-    by_group = dict(zip(runs, measured.groups, strict=True))
+        used.setdefault((check.gate, check.engine), set()).add(check.integrator)
+    runs = [RunGroup.of(gate, engine, names) for (gate, engine), names in used.items()]
+    measured = measure_groups(runs, cache, progress, executor, console)
+    by_group = dict(zip(used, measured.groups, strict=True))
     rows = [_check_row(check, by_group[(check.gate, check.engine)]) for check in checks]
     table = pd.DataFrame(rows, columns=CHECK_COLUMNS)
     table.attrs.update(computed=measured.computed, cached=measured.cached)
@@ -222,9 +218,10 @@ class Measurements:
 def run_spec(cache: ResultsCache, scene: Scene, engine: str, integrator: str, dt: float):
     """The run of a gate: a report's run of it where the cache holds one (timed as the report
     times runs), else one of GATE_REPEATS timings."""
-    for repeats in (SWEEP_REPEATS, QUICK_HARD_REPEATS, GATE_REPEATS):
-        if cache.path(run_key(scene, engine, integrator, dt, repeats)).exists():
-            return RunSpec(scene, engine, integrator, dt, repeats)
+    for repeats in (SWEEP_REPEATS, QUICK_HARD_REPEATS):
+        spec = RunSpec(scene, engine, integrator, dt, repeats)
+        if cache.path(_key(spec)).exists():
+            return spec
     return RunSpec(scene, engine, integrator, dt, GATE_REPEATS)
 
 
@@ -239,7 +236,8 @@ class _Once:
         yield from ((item, self.failed[item]) for item in items if item in self.failed)
         fresh = [item for item in items if item not in self.failed]
         for item, out in self.inner.map_unordered(fn, fresh):
-            if out[0] is None:
+            trajectory, _, _ = out  # `comparators.sweep.execute`'s (trajectory, error, analysis)
+            if trajectory is None:
                 self.failed[item] = out
             yield item, out
 
@@ -253,7 +251,8 @@ def measure_groups(
 ) -> Measurements:
     """Each group's results and outcomes. Every run not in `cache` is computed once, all of
     them in one sweep (the executor's workers busy throughout); then each group is read back
-    as a sweep of its own, so its self-convergence references are its own finest dt."""
+    from the cache as a sweep of its own, so its self-convergence references are its own
+    finest dt."""
     runnable = [g for g in groups if g.refusal is None]
     specs = {
         g: [run_spec(cache, g.scene, g.engine, i, dt) for i in g.integrators for dt in g.dts]
@@ -264,7 +263,8 @@ def measure_groups(
         warm_up(["reference"])
     once = _Once(executor or LocalExecutor(os.cpu_count() or 1))
     everything = list(dict.fromkeys(s for group in specs.values() for s in group))
-    swept = run_sweep(everything, cache, once, progress=progress, console=console)
+    missing = [spec for spec in everything if not cache.path(_key(spec)).exists()]
+    computed = run_sweep(missing, cache, once, progress=progress, console=console).computed
     out = []
     for group in groups:
         if group.refusal is not None:
@@ -272,7 +272,11 @@ def measure_groups(
             continue
         own = run_sweep(specs[group], cache, once, progress=False)
         out.append(Measured(own.results, own.outcomes))
-    return Measurements(out, swept.computed, swept.cached)
+    return Measurements(out, computed, len(everything) - computed)
+
+
+def _key(spec: RunSpec) -> str:
+    return run_key(spec.scene, spec.engine, spec.integrator, spec.dt, spec.repeats)
 
 
 # ---- checking -----------------------------------------------------------------------------------

@@ -13,6 +13,8 @@ from comparators.cache import ResultsCache
 from comparators.engine import ENGINES
 from comparators.outcomes import outcomes
 from comparators.summary import summarize
+from comparators.sweep import RunSpec, run_sweep
+from comparators.timing import SWEEP_REPEATS
 from gates.evaluate import CHECK_COLUMNS, evaluate, plan_checks
 from gates.spec import ALL_INTEGRATORS, is_gate_file, load_gates
 
@@ -213,7 +215,7 @@ def cache(tmp_path_factory) -> ResultsCache:
     return ResultsCache(tmp_path_factory.mktemp("gate-cache"))
 
 
-SPIN = """
+BLOG_SPIN = """
 [[gates]]
 name = "blog"
 case = "free_spin_cube"
@@ -224,7 +226,8 @@ duration = 1.0
 energy_drift = { max = 1e-3 }
 steps = { min = 100, max = 100 }
 verdict = "ok"
-
+"""
+MJ_SPIN = """
 [[gates]]
 name = "mj"
 case = "free_spin_cube"
@@ -235,6 +238,7 @@ duration = 1.0
 energy_drift = { max = 1e-3 }
 steps = { max = 50 }
 """
+SPIN = BLOG_SPIN + MJ_SPIN
 
 
 def test_limits_pass_and_fail_on_the_suites_own_measures(tmp_path, cache):
@@ -424,3 +428,13 @@ def test_an_unavailable_engine_is_bad_input(tmp_path, cache, broken, monkeypatch
     text = SPIN.replace('"reference"', '"broken"').replace('"seed"', '"only"')
     with pytest.raises(InputError, match="engine 'broken' is unavailable: pip install broken"):
         evaluate(load_gates([write(tmp_path, text)]), cache, executor=SerialExecutor(refuse=True))
+
+
+def test_a_run_the_report_made_is_read_not_run_again(tmp_path):
+    cache = ResultsCache(tmp_path / "cache")
+    short = dataclasses.replace(CATALOG["free_spin_cube"], duration=1.0)
+    spec = RunSpec(short, "mujoco", "Euler", short.dt, SWEEP_REPEATS)  # timed as a report times
+    run_sweep([spec], cache, SerialExecutor(), progress=False)
+    gates = load_gates([write(tmp_path, MJ_SPIN)])
+    table = evaluate(gates, cache, progress=False, executor=SerialExecutor(refuse=True))
+    assert table.attrs == {"computed": 0, "cached": 1} and len(table) == 2
