@@ -10,17 +10,22 @@ from cases.exact import exact_states, exact_trajectory_available
 from cases.scene import Scene
 from comparators.engine_output import first_message, message_count
 from comparators.metrics import body_arrays, drifts, pose_errors, rest
+from comparators.run_data import RunData
 from comparators.trajectory import Trajectory
-from comparators.verdict import verdict
+from comparators.verdict import energy_growth, verdict
 
 
 def summarize(traj: Trajectory, scene: Scene) -> dict[str, float | str | bool]:
-    """One run's headline numbers: speed, drifts, pose error against the exact solution where
-    the scene has one (largest over the run, and the orientation error at the end), largest
-    shape error (deforming engines), rest (where the scene predicts a rest height), what the
-    engine said while it ran (`engine_messages`: lines, and the first one where there is one)
-    and the verdict (`comparators.verdict.verdict`: ok, diverged, tunnelled or jitter)."""
+    """One run's headline numbers: speed, drifts, the energy gain (the largest rise of total
+    energy above its start, relative to the energy the scene can put into motion: a contact may
+    only take energy away; `comparators.verdict.energy_growth`), pose error against the exact
+    solution where the scene has one (largest over the run, and the orientation error at the
+    end), largest shape error (deforming engines), rest (where the scene predicts a rest
+    height), what the engine said while it ran (`engine_messages`: lines, and the first one
+    where there is one) and the verdict (`comparators.verdict.verdict`: ok, diverged,
+    tunnelled or jitter)."""
     m = traj.meta
+    run = RunData(traj, scene)
     out: dict[str, float | str | bool] = {
         "case": m.case,
         "engine": m.engine,
@@ -38,6 +43,7 @@ def summarize(traj: Trajectory, scene: Scene) -> dict[str, float | str | bool]:
     }
     with np.errstate(over="ignore", invalid="ignore"):  # a blown-up run's drifts are inf
         out.update(drifts(traj, scene))
+        out["energy_gain"] = energy_growth(traj, scene, run)
     if exact_trajectory_available(scene):
         times = body_arrays(traj, scene.bodies[0].name)["t"]
         errors = pose_errors(traj, exact_states(scene, times), scene)
@@ -58,5 +64,5 @@ def summarize(traj: Trajectory, scene: Scene) -> dict[str, float | str | bool]:
     out["engine_messages"] = message_count(m.messages)
     if m.messages:
         out["first_engine_message"] = first_message(m.messages)
-    out["verdict"] = verdict(traj, scene)
+    out["verdict"] = verdict(traj, scene, run)
     return out

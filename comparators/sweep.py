@@ -66,6 +66,7 @@ RESULT_COLUMNS = [
     "solver_subspace",  # the reference's subspace steps (direct solves) per solve, else NaN
     "solver_extrapolations",  # the reference's extrapolations per solve, else NaN
     "energy_drift",
+    "energy_gain",  # largest rise of energy above its start, relative to verdict.energy_scale
     "momentum_drift",
     "angular_momentum_drift",
     "position_error",  # m, against `reference`

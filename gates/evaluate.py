@@ -395,3 +395,10 @@ def _fraction(room: float, bound: float) -> float:
     if bound != 0:
         return room / abs(bound)
     return 0.0 if room == 0 else math.copysign(math.inf, room)
+
+
+def check_from_runs(check: Check, results: pd.DataFrame, outcomes: pd.DataFrame) -> dict:
+    """One `CHECK_COLUMNS` row of `check` judged on runs already made: `results` and
+    `outcomes` rows of a sweep (`comparators.sweep.SweepResult`) holding the check's case,
+    engine and integrator at each dt of its gate (the report reads its own sweep this way)."""
+    return _check_row(check, Measured(results, outcomes))

@@ -72,6 +72,7 @@ RESULT_MEASURES = (
     "solver_subspace",
     "solver_extrapolations",
     "energy_drift",
+    "energy_gain",
     "momentum_drift",
     "angular_momentum_drift",
     "position_error",

@@ -39,6 +39,9 @@ def _verdict_css() -> str:
         text = "white" if verdict in ("diverged", "failed") else "#222"
         name = verdict.replace(" ", "-")
         rules.append(f".verdict-{name} {{ background: {colour}; color: {text}; }}")
+    # the physics gates' pass and fail, as ok and diverged
+    rules.append(f".gate-pass {{ background: {VERDICT_COLOURS['ok']}; color: #222; }}")
+    rules.append(f".gate-fail {{ background: {VERDICT_COLOURS['diverged']}; color: white; }}")
     return "\n".join(rules) + "\n"
 
 

@@ -39,6 +39,7 @@ from reports.sections.overview import (
     throughput_section,
     timing_section,
 )
+from reports.sections.physics import physics_section
 from reports.sections.scaling import scaling_section
 from reports.sections.summary import summary_section
 from reports.tables import write_outcomes, write_results, write_scaling, write_text
@@ -64,6 +65,7 @@ def render_markdown(
     parts += [catalog_section(result)]
     parts += [case_section(result, case, fits, figures, out) for case in result.scenes]
     parts += [largest_stable_section(result), contact_validation_section(result)]
+    parts += [physics_section(result)]
     parts += [cost_section(result.results)]
     if scaling is not None:
         parts += [scaling_section(scaling, figures, out)]

@@ -179,6 +179,20 @@ LARGEST_STABLE = (
     "beyond the sweep; none: even the smallest swept dt fails. A case swept at one dt only "
     "(the quick report's hard cases) says ok or not at its default dt."
 )
+PHYSICS_GATES = (
+    "What `rigidbench gate --physics --engine NAME` checks, read from this report's own runs: "
+    "the physics gates shipped with rigidbench (`gates/physics/`, each limit justified there), "
+    "expectations any correct engine meets: angular momentum conserved in free flight, no "
+    "energy gain beyond 1 %, the fitted order within 0.15 of the declared one on smooth free "
+    "flight, rebound within 2 % of e, slide distance and incline acceleration within 1 %, "
+    "resting contact without creep or jitter, the stack standing. How to read: a row per "
+    "gate and measure (at its dt; the order over the gate's dt list), its limit, and per "
+    "engine/integrator pass or fail with the measured value (why, where a run failed or "
+    "diverged); not measured: this report's sweep lacks the gate's runs (a quick report "
+    "sweeps the hard cases at their default dt only); not modelled: the engine does not run "
+    "the case. The order gate reads the first 2 s of the tumbling box's runs, before its "
+    "first flip: a fixed-step run's first 2 s are the 2 s run's own."
+)
 COST_TO_TOLERANCE = (
     "How to read: per case and engine, the least stepping time per simulated second (s/s) "
     "among its valid runs (any integrator, any dt) whose orientation error stays within "
