@@ -438,3 +438,29 @@ def test_a_run_the_report_made_is_read_not_run_again(tmp_path):
     gates = load_gates([write(tmp_path, MJ_SPIN)])
     table = evaluate(gates, cache, progress=False, executor=SerialExecutor(refuse=True))
     assert table.attrs == {"computed": 0, "cached": 1} and len(table) == 2
+
+
+EXACT_ORDER = """
+[[gates]]
+name = "exact_order"
+case = "tumbling_box"
+engine = "reference"
+integrator = "{integrator}"
+duration = 2.0
+dt = [0.02, 0.01, 0.005]
+[gates.limits]
+order = {{ declared_within = 0.15 }}
+"""
+
+
+@pytest.mark.parametrize("integrator, passed", [("exact", True), ("splitting", True)])
+def test_an_order_gate_passes_when_every_error_is_rounding(tmp_path, cache, integrator, passed):
+    """The exact integrator has no truncation error in free flight: nothing to fit, and it
+    converges faster than any declared order; splitting's order is fitted."""
+    gates = load_gates([write(tmp_path, EXACT_ORDER.format(integrator=integrator))])
+    (row,) = evaluate(gates, cache, progress=False).itertuples()
+    assert row.passed == passed
+    if integrator == "exact":
+        assert math.isnan(row.measured) and row.reason.startswith("rounding")
+    else:
+        assert abs(row.measured - 2) < 0.15

@@ -146,16 +146,17 @@ def test_a_runs_first_seconds_are_the_shorter_run(engine, integrator):
 
 PAIRS = [("reference", "splitting"), ("mujoco", "RK4")]
 TUMBLING_DTS = (0.02, 0.01, 0.005)  # the order gate's dts
+FREE_FLIGHT_DT = 0.00125  # the L and energy gates' dt
 
 
 @pytest.fixture(scope="module")
 def sweep() -> SweepResult:
-    """tumbling_box (10 s) swept at the order gate's dts by two engines: what the free-flight
+    """tumbling_box (10 s) swept at the order gate's dts and the L and energy gates' dt by two engines: what the free-flight
     gates need, and nothing the contact gates need."""
     for engine, _ in PAIRS:
         if ENGINES[engine].missing:
             pytest.skip(f"{engine}: {ENGINES[engine].missing}")
-    return build_result([CATALOG["tumbling_box"]], PAIRS, TUMBLING_DTS)
+    return build_result([CATALOG["tumbling_box"]], PAIRS, (*TUMBLING_DTS, FREE_FLIGHT_DT))
 
 
 def _cell(checks: pd.DataFrame, gate: str, engine: str, measure: str) -> pd.Series:
@@ -175,7 +176,7 @@ def test_the_section_judges_the_sweeps_own_runs(sweep):
     checks = physics_checks(sweep)
     L = _cell(checks, "tumbling_box_L", "mujoco", "angular_momentum_drift")
     measured = sweep.results.set_index(["case", "engine", "integrator", "dt"]).loc[
-        ("tumbling_box", "mujoco", "RK4", 0.01), "angular_momentum_drift"
+        ("tumbling_box", "mujoco", "RK4", FREE_FLIGHT_DT), "angular_momentum_drift"
     ]
     assert L["passed"] == True and L["measured"] == measured  # noqa: E712
     order = _cell(checks, "tumbling_box_order", "reference", "order")
@@ -196,7 +197,7 @@ def test_a_pass_becomes_a_fail_when_the_results_say_so(sweep):
     before = row(sweep)["mujoco RK4"]
     assert before.startswith('<span class="verdict gate-pass">pass</span>')
     results = sweep.results.copy()
-    at = (results["engine"] == "mujoco") & np.isclose(results["dt"], 0.01)
+    at = (results["engine"] == "mujoco") & np.isclose(results["dt"], FREE_FLIGHT_DT)
     results.loc[at, "angular_momentum_drift"] = 0.05  # five times the 1 % the gate allows
     altered = dataclasses.replace(sweep, results=results)
     assert row(altered)["mujoco RK4"] == '<span class="verdict gate-fail">fail</span> 0.05'
@@ -205,7 +206,7 @@ def test_a_pass_becomes_a_fail_when_the_results_say_so(sweep):
 
 def test_a_diverged_run_fails_with_its_reason(sweep):
     results = sweep.results.copy()
-    at = (results["engine"] == "reference") & np.isclose(results["dt"], 0.01)
+    at = (results["engine"] == "reference") & np.isclose(results["dt"], FREE_FLIGHT_DT)
     results.loc[at, "verdict"] = "diverged"
     checks = physics_checks(dataclasses.replace(sweep, results=results))
     energy = _cell(checks, "tumbling_box_energy", "reference", "energy_gain")
