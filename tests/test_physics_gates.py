@@ -151,8 +151,8 @@ FREE_FLIGHT_DT = 0.00125  # the L and energy gates' dt
 
 @pytest.fixture(scope="module")
 def sweep() -> SweepResult:
-    """tumbling_box (10 s) swept at the order gate's dts and the L and energy gates' dt by two engines: what the free-flight
-    gates need, and nothing the contact gates need."""
+    """tumbling_box (10 s) swept by two engines at the order gate's dts and the L and energy
+    gates' dt: what the free-flight gates need, and nothing the contact gates need."""
     for engine, _ in PAIRS:
         if ENGINES[engine].missing:
             pytest.skip(f"{engine}: {ENGINES[engine].missing}")
