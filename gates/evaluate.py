@@ -282,8 +282,9 @@ def _key(spec: RunSpec) -> str:
 # ---- checking -----------------------------------------------------------------------------------
 
 
-def _check_row(check: Check, measured: Measured) -> dict:
-    row = {
+def check_labels(check: Check) -> dict:
+    """The `CHECK_COLUMNS` row of `check` before it is judged: what it checks, failed."""
+    return {
         "file": str(check.gate.file),
         "gate": check.gate.name,
         "case": check.gate.scene.name,
@@ -297,6 +298,10 @@ def _check_row(check: Check, measured: Measured) -> dict:
         "passed": False,
         "reason": "",
     }
+
+
+def _check_row(check: Check, measured: Measured) -> dict:
+    row = check_labels(check)
     if measured.refusal is not None:
         return row | {"passed": None, "reason": measured.refusal}
     runs = measured.results[measured.results["integrator"] == check.integrator]

@@ -151,13 +151,16 @@ def _cmd_run(args, console: Console) -> None:
         console.print(f"run: wrote {len(traj.table)} rows to {args.out}", markup=False)
 
 
-def _gif_out(text: str) -> Path:
-    """The animation's --out FILE.gif, checked before any run: a .gif in an existing directory."""
+def _output_file(text: str | None, option: str, suffix: str) -> Path | None:
+    """An `option` FILE with `suffix`, checked before any run: the suffix and an existing
+    directory (None when the option is not given)."""
+    if not text:
+        return None
     out = Path(text)
-    if out.suffix.lower() != ".gif":
-        raise InputError(f"--out {text!r}: expected a file name ending in .gif")
+    if out.suffix.lower() != suffix:
+        raise InputError(f"{option} {text!r}: expected a file name ending in {suffix}")
     if not out.parent.is_dir():
-        raise InputError(f"--out {text!r}: directory {str(out.parent)!r} missing")
+        raise InputError(f"{option} {text!r}: directory {str(out.parent)!r} missing")
     return out
 
 
@@ -216,7 +219,7 @@ def _cmd_animate(args, console: Console) -> None:
     from reports.arguments import DEFAULT_OUT
 
     scene = resolve_case(args.case)
-    out = _gif_out(args.out)
+    out = _output_file(args.out, "--out", ".gif")
     pairs = _animated_runs(args, scene, console)
     dt = scene.dt if args.dt is None else args.dt
     duration = scene.duration if args.duration is None else args.duration
@@ -248,24 +251,12 @@ def _cmd_animate(args, console: Console) -> None:
     console.print(closing, markup=False, soft_wrap=True)
 
 
-def _bench_out(text: str | None) -> Path | None:
-    """The bench's --out FILE.csv, checked before any run: a .csv in an existing directory."""
-    if not text:
-        return None
-    out = Path(text)
-    if out.suffix.lower() != ".csv":
-        raise InputError(f"--out {text!r}: expected a file name ending in .csv")
-    if not out.parent.is_dir():
-        raise InputError(f"--out {text!r}: directory {str(out.parent)!r} missing")
-    return out
-
-
 def _cmd_bench(args, console: Console) -> None:
     from comparators.bench import bench, plan_bench
     from comparators.sweep import warm_up
     from reports.plots import plot_throughput
 
-    out = _bench_out(args.out)
+    out = _output_file(args.out, "--out", ".csv")
     scenes = _scenes(args.cases)
     engines = _engines(args.engines)
     plan_bench(scenes, engines, args.dt, args.duration)  # bad dt or duration: before any run
@@ -353,18 +344,6 @@ def _report_closing(result, out: Path, elapsed_s: float) -> str:
     )
 
 
-def _junit_out(text: str | None) -> Path | None:
-    """The gate's --junit FILE.xml, checked before any run: a .xml in an existing directory."""
-    if not text:
-        return None
-    out = Path(text)
-    if out.suffix.lower() != ".xml":
-        raise InputError(f"--junit {text!r}: expected a file name ending in .xml")
-    if not out.parent.is_dir():
-        raise InputError(f"--junit {text!r}: directory {str(out.parent)!r} missing")
-    return out
-
-
 def _gate_paths(args) -> list[Path]:
     """The gate files and directories to check: FILE_OR_DIR..., and with --physics the
     package's physics gates."""
@@ -417,7 +396,7 @@ def _cmd_gate(args, console: Console) -> int:
         return _record_gates(args, console, start)
     if args.cases:
         raise InputError("--cases: only with --record OUT.toml (the gates name their cases)")
-    junit = _junit_out(args.junit)
+    junit = _output_file(args.junit, "--junit", ".xml")
     gates = load_gates(_gate_paths(args))
     return _check_gates(args, console, gates, junit, start)
 

@@ -24,7 +24,7 @@ from comparators.summary import summarize
 from comparators.sweep import RESULT_COLUMNS, RunSpec, SweepResult, empty_outcomes, run_outcomes
 from comparators.trajectory import Trajectory
 from gates import PHYSICS_DIR
-from gates.evaluate import CHECK_COLUMNS, Check, check_from_runs, plan_checks
+from gates.evaluate import CHECK_COLUMNS, Check, check_from_runs, check_labels, plan_checks
 from gates.spec import Gate, is_outcome_measure, load_gates
 from reports import plots, texts
 from reports.sections.layout import section
@@ -168,18 +168,7 @@ def _unmeasurable(check: Check, runs: _GateRuns) -> str | None:
 
 def _not_measured(check: Check, why: str) -> dict:
     """The `CHECK_COLUMNS` row of a check the sweep cannot judge."""
-    return dict.fromkeys(CHECK_COLUMNS, np.nan) | {
-        "file": str(check.gate.file),
-        "gate": check.gate.name,
-        "case": check.gate.scene.name,
-        "engine": check.engine,
-        "integrator": check.integrator,
-        "dt": check.dt,
-        "measure": check.limit.measure,
-        "limit": check.limit_text,
-        "passed": None,
-        "reason": f"{NOT_MEASURED}: {why}",
-    }
+    return check_labels(check) | {"passed": None, "reason": f"{NOT_MEASURED}: {why}"}
 
 
 def physics_checks(result: SweepResult, gates: list[Gate] | None = None) -> pd.DataFrame:
