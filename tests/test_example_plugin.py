@@ -5,17 +5,14 @@ command then knows the engine: `engines`, `run`, `report` (tables and plots) and
 import os
 import re
 import subprocess
-import sys
-import venv
 from pathlib import Path
 
 import pandas as pd
 import pytest
+from venvs import venv_with
 
 ROOT = Path(__file__).resolve().parent.parent
 PLUGIN = ROOT / "examples" / "engine_plugin"
-# pip install of a small package: building it needs setuptools from the registry.
-INSTALL_TIMEOUT_S = 300
 # Fitted slopes of an order-4 scheme on tumbling_box at dt 0.005 to 0.02: 4.01 measured.
 ORDER_TOLERANCE = 0.2
 # A command's own time limit: the report below is a few thousand small steps.
@@ -26,18 +23,7 @@ COMMAND_TIMEOUT_S = 300
 def plugin_python(tmp_path_factory) -> Path:
     """The Python of a venv that sees this environment's packages (rigidbench among them) and
     has the example plugin installed."""
-    where = tmp_path_factory.mktemp("plugin-venv")
-    venv.EnvBuilder(system_site_packages=True, with_pip=False).create(where)
-    python = where / "bin" / "python"
-    install = subprocess.run(
-        [sys.executable, "-m", "pip", "--python", str(python), "install", "--no-deps"]
-        + ["--quiet", "--disable-pip-version-check", str(PLUGIN)],
-        capture_output=True,
-        text=True,
-        timeout=INSTALL_TIMEOUT_S,
-    )
-    assert install.returncode == 0, install.stderr
-    return python
+    return venv_with(PLUGIN, tmp_path_factory.mktemp("plugin-venv"))
 
 
 def rigidbench(python: Path, *args: str, cwd: Path) -> subprocess.CompletedProcess:

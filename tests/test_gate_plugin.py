@@ -6,17 +6,13 @@ import os
 import re
 import shutil
 import subprocess
-import sys
 import tomllib
-import venv
 from pathlib import Path
 
 import pytest
+from venvs import venv_with
 
 ROOT = Path(__file__).resolve().parent.parent
-# pip install of rigidbench (without dependencies: the venv sees this environment's): building
-# it fetches setuptools from the registry.
-INSTALL_TIMEOUT_S = 300
 # A command's own limit: two short MuJoCo runs, and the imports of a fresh interpreter.
 COMMAND_TIMEOUT_S = 300
 
@@ -70,18 +66,7 @@ def python(tmp_path_factory) -> Path:
     from a copy of this checkout's sources (so its metadata, entry points included, is this
     checkout's, whatever rigidbench the environment has)."""
     source = _source_copy(tmp_path_factory.mktemp("rigidbench-source"))
-    where = tmp_path_factory.mktemp("gates-venv")
-    venv.EnvBuilder(system_site_packages=True, with_pip=False).create(where)
-    python = where / "bin" / "python"
-    install = subprocess.run(
-        [sys.executable, "-m", "pip", "--python", str(python), "install", "--no-deps"]
-        + ["--quiet", "--disable-pip-version-check", str(source)],
-        capture_output=True,
-        text=True,
-        timeout=INSTALL_TIMEOUT_S,
-    )
-    assert install.returncode == 0, install.stderr
-    return python
+    return venv_with(source, tmp_path_factory.mktemp("gates-venv"))
 
 
 @pytest.fixture
