@@ -9,6 +9,7 @@ whose bodies deform (the reference's `seed`) also records where every particle i
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import platform
@@ -33,6 +34,9 @@ ANGULAR_VELOCITY = ["wx", "wy", "wz"]
 STATE = POSITION + QUATERNION + VELOCITY + ANGULAR_VELOCITY
 COLUMNS = ["t", "body", *STATE]
 META_KEY = b"rigidbench"
+# Where a results-cache entry keeps its stamp (`comparators.cache`): its run key and the
+# `content_checksum` of what it holds.
+STAMP_KEY = b"rigidbench.entry"
 # The Parquet column holding `Trajectory.particles`: per table row, that body's particles at
 # that sample as a list x0, y0, z0, x1, ... (a list column, so bodies of any size share it).
 PARTICLES_COLUMN = "particles"
@@ -162,10 +166,12 @@ class Trajectory:
         """The rows of one body, in time order."""
         return self.table[self.table["body"] == name].reset_index(drop=True)
 
-    def write(self, path: str | os.PathLike) -> Path:
+    def write(self, path: str | os.PathLike, stamp: dict[str, str] | None = None) -> Path:
         """Write .csv (metadata beside it in FILE.meta.json) or .parquet (metadata inside).
 
         Files are written to a temporary name and renamed, so nothing is ever half-written.
+        `stamp` (Parquet only) is stored beside the metadata, with "checksum" set to the
+        `content_checksum` of what is written; `read_stamped` reads it back.
         """
         path = Path(path)
         suffix = path.suffix.lower()
@@ -181,7 +187,11 @@ class Trajectory:
             table = pa.Table.from_pandas(self.table, preserve_index=False)
             if self.particles is not None:
                 table = table.append_column(PARTICLES_COLUMN, self._particle_lists())
-            table = table.replace_schema_metadata({**table.schema.metadata, META_KEY: meta})
+            extra = {META_KEY: meta}
+            if stamp is not None:
+                stamp = {**stamp, "checksum": content_checksum(meta, self.table, self.particles)}
+                extra[STAMP_KEY] = json.dumps(stamp, sort_keys=True).encode()
+            table = table.replace_schema_metadata({**table.schema.metadata, **extra})
             with atomic_path(path) as tmp:
                 pq.write_table(table, tmp)
         return path
@@ -206,16 +216,48 @@ class Trajectory:
         if path.suffix.lower() == ".csv":
             table = pd.read_csv(path)
             meta = json.loads(path.with_name(path.name + ".meta.json").read_text())
-        else:
-            arrow = pq.read_table(path)
-            meta = json.loads(arrow.schema.metadata[META_KEY])
-            if PARTICLES_COLUMN in arrow.column_names:
-                lists = arrow.column(PARTICLES_COLUMN).combine_chunks()
-                arrow = arrow.drop_columns([PARTICLES_COLUMN])
-                table = arrow.to_pandas()
-                return cls(table, RunMeta(**meta), _particles_from_lists(table, lists))
-            table = arrow.to_pandas()
-        return cls(table, RunMeta(**meta))
+            return cls(table, RunMeta(**meta))
+        return cls._read_parquet(path)[0]
+
+    @classmethod
+    def read_stamped(cls, path: str | os.PathLike) -> tuple[Trajectory, dict | None, str]:
+        """A .parquet file's trajectory, the stamp `write` stored (None if none), and the
+        `content_checksum` of what was read, to compare with the stamp's."""
+        traj, metadata = cls._read_parquet(path)
+        stamp = json.loads(metadata[STAMP_KEY]) if STAMP_KEY in metadata else None
+        return traj, stamp, content_checksum(metadata[META_KEY], traj.table, traj.particles)
+
+    @classmethod
+    def _read_parquet(cls, path) -> tuple[Trajectory, dict[bytes, bytes]]:
+        arrow = pq.read_table(path)
+        metadata = arrow.schema.metadata
+        meta = RunMeta(**json.loads(metadata[META_KEY]))
+        if PARTICLES_COLUMN in arrow.column_names:
+            lists = arrow.column(PARTICLES_COLUMN).combine_chunks()
+            table = arrow.drop_columns([PARTICLES_COLUMN]).to_pandas()
+            return cls(table, meta, _particles_from_lists(table, lists)), metadata
+        return cls(arrow.to_pandas(), meta), metadata
+
+
+def content_checksum(meta: bytes, table: pd.DataFrame, particles: dict | None) -> str:
+    """SHA-256 of a trajectory's content as stored: the metadata's bytes, every column (name,
+    type, values) and every body's particles. The same before writing and after reading back."""
+    digest = hashlib.sha256(meta)
+    for name, column in table.items():
+        values = column.to_numpy()
+        digest.update(f"\0column {name} {values.dtype.kind}".encode())
+        if values.dtype.kind in "biuf":
+            digest.update(values.dtype.str.encode())
+            digest.update(np.ascontiguousarray(values).tobytes())
+        else:  # text (body names): codes into the distinct values, then the values
+            codes, uniques = pd.factorize(column)
+            digest.update(codes.astype(np.int64).tobytes())
+            digest.update(json.dumps([str(u) for u in uniques]).encode())
+    for name in sorted(particles or {}):
+        p = np.ascontiguousarray(particles[name], dtype=float)
+        digest.update(f"\0particles {name} {p.shape}".encode())
+        digest.update(p.tobytes())
+    return digest.hexdigest()
 
 
 def _particles_from_lists(table: pd.DataFrame, lists: pa.LargeListArray) -> dict[str, np.ndarray]:

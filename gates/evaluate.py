@@ -220,7 +220,7 @@ def run_spec(cache: ResultsCache, scene: Scene, engine: str, integrator: str, dt
     times runs), else one of GATE_REPEATS timings."""
     for repeats in (SWEEP_REPEATS, QUICK_HARD_REPEATS):
         spec = RunSpec(scene, engine, integrator, dt, repeats)
-        if cache.path(_key(spec)).exists():
+        if cache.has(_key(spec)):
             return spec
     return RunSpec(scene, engine, integrator, dt, GATE_REPEATS)
 
@@ -263,7 +263,7 @@ def measure_groups(
         warm_up(["reference"])
     once = _Once(executor or LocalExecutor(os.cpu_count() or 1))
     everything = list(dict.fromkeys(s for group in specs.values() for s in group))
-    missing = [spec for spec in everything if not cache.path(_key(spec)).exists()]
+    missing = [spec for spec in everything if not cache.has(_key(spec))]
     computed = run_sweep(missing, cache, once, progress=progress, console=console).computed
     out = []
     for group in groups:
