@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+import warnings
 from pathlib import Path
 
 from rich.console import Console
@@ -25,6 +26,7 @@ from rich.text import Text
 from cases import CATALOG, InputError, resolve_case, scene_to_toml
 from cases.catalog import CUBE_RAIN_MAX, CUBE_RAIN_PREFIX, CUBE_RAIN_REPRESENTATIVE
 from comparators import ENGINES, get_engine, run
+from comparators.cache import CacheWarning
 from comparators.engine import ContractError, left_out, unsupported
 from comparators.engine_output import terminal_stream
 from comparators.parity import ParityError
@@ -462,12 +464,27 @@ COMMANDS = {
 }
 
 
+def _one_line_cache_warnings(shown):
+    """`warnings.showwarning` that prints a `CacheWarning` as one line on stderr (the file and
+    why it was discarded) and passes every other warning to `shown`."""
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, CacheWarning):
+            print(f"rigidbench: warning: {message}", file=sys.stderr, flush=True)
+        else:
+            shown(message, category, filename, lineno, file, line)
+
+    return show
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     terminal = terminal_stream()
     console = Console(file=terminal)
     try:
-        status = COMMANDS[args.command](args, console) or 0
+        with warnings.catch_warnings():
+            warnings.showwarning = _one_line_cache_warnings(warnings.showwarning)
+            status = COMMANDS[args.command](args, console) or 0
     except InputError as exc:
         print(f"rigidbench: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
