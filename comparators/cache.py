@@ -109,10 +109,10 @@ class ResultsCache:
         try:
             traj, stamp, checksum = Trajectory.read_stamped(path)
         except Exception as exc:  # whatever a damaged file makes the reader raise
-            return self._discard(path, f"unreadable ({_exception_line(exc)})")
+            return self._discard(path, f"is unreadable ({_exception_line(exc)})")
         reason = _stamp_problem(stamp, key)
         if reason is None and stamp["checksum"] != checksum:
-            reason = "its content does not match its checksum (corrupted)"
+            reason = "fails its checksum (its content changed after it was written)"
         return traj if reason is None else self._discard(path, reason)
 
     def has(self, key: str) -> bool:
@@ -126,7 +126,7 @@ class ResultsCache:
             metadata = pq.read_schema(path).metadata or {}
             stamp = json.loads(metadata[STAMP_KEY]) if STAMP_KEY in metadata else None
         except Exception as exc:
-            reason = f"unreadable ({_exception_line(exc)})"
+            reason = f"is unreadable ({_exception_line(exc)})"
         else:
             reason = _stamp_problem(stamp, key)
         if reason is None:
@@ -150,7 +150,7 @@ class ResultsCache:
                 fate = "deleted"
             except OSError as exc:
                 fate = f"could not be removed ({_exception_line(exc)})"
-        message = f"cache entry {path.as_posix()} is {reason}: discarded ({fate}), recomputing"
+        message = f"cache entry {path.as_posix()} {reason}: discarded ({fate}), recomputing"
         warnings.warn(message, CacheWarning, stacklevel=3)
         return None
 
@@ -158,9 +158,9 @@ class ResultsCache:
 def _stamp_problem(stamp, key: str) -> str | None:
     """What is wrong with an entry's stamp for `key`, or None."""
     if not isinstance(stamp, dict) or "key" not in stamp or "checksum" not in stamp:
-        return "without a key and checksum (written by an older rigidbench)"
+        return "has no key or checksum (written by an older rigidbench)"
     if stamp["key"] != key:
-        return f"the entry of another key ({str(stamp['key'])[:64]})"
+        return f"holds the run of another key ({str(stamp['key'])[:64]})"
     return None
 
 

@@ -102,12 +102,12 @@ def flip_a_data_byte(path, other):
 
 
 DAMAGES = {
-    truncate: "unreadable",
-    garbage: "unreadable",
-    foreign: "the entry of another key",
-    tampered: "does not match its checksum",
-    flip_a_data_byte: "does not match its checksum",
-    unstamped: "without a key and checksum",
+    truncate: "is unreadable",
+    garbage: "is unreadable",
+    foreign: "holds the run of another key",
+    tampered: "fails its checksum",
+    flip_a_data_byte: "fails its checksum",
+    unstamped: "has no key or checksum",
 }
 
 
