@@ -3,6 +3,7 @@ with one warning and its run computed again; a report survives it with the same 
 
 import dataclasses
 import shutil
+from pathlib import Path
 
 import pandas as pd
 import pyarrow.parquet as pq
@@ -178,3 +179,22 @@ def test_a_report_survives_a_corrupted_cache(tmp_path):
     assert "2 computed" in second.stdout
     again = pd.read_csv(out / "results.csv")
     pd.testing.assert_frame_equal(again.drop(columns=TIMED), results.drop(columns=TIMED))
+
+
+def test_gates_recompute_the_bad_entries_and_count_them(tmp_path):
+    """Gates ask `has` which runs are stored: a bad entry is computed in the first sweep and
+    counted as computed, not as cached."""
+    from gates.evaluate import evaluate
+    from gates.spec import load_gates
+
+    gate_file = Path(__file__).parent / "gates" / "mujoco.toml"
+    gates, cache = load_gates([gate_file]), ResultsCache(tmp_path)
+    first = evaluate(gates, cache, progress=False, executor=CountingExecutor())
+    entries = sorted(tmp_path.glob("*.parquet"))
+    truncate(entries[0], None)
+    foreign(entries[1], entries[2])
+    with pytest.warns(CacheWarning) as caught:
+        again = evaluate(gates, cache, progress=False, executor=CountingExecutor())
+    assert len([w for w in caught if issubclass(w.category, CacheWarning)]) == 2
+    assert (again.attrs["computed"], again.attrs["cached"]) == (2, first.attrs["computed"] - 2)
+    assert again["passed"].tolist() == first["passed"].tolist()
