@@ -2,7 +2,8 @@
 `reports.arguments`.
 
 Bad input (unknown case, engine or integrator, malformed case file, NaN dt) is reported as one
-line on stderr with exit status 2 and no traceback; nothing is written.
+line on stderr with exit status 2 and no traceback; nothing is written. Ctrl-C is one line and
+exit status 130, with every worker process stopped and no file half-written.
 
 The terminal shows progress and one closing line saying what was written where. What engines
 print or warn goes into each run's record (`comparators.engine_output`), not onto the terminal:
@@ -27,6 +28,7 @@ from cases.catalog import CUBE_RAIN_MAX, CUBE_RAIN_PREFIX, CUBE_RAIN_REPRESENTAT
 from comparators import ENGINES, get_engine, run
 from comparators.engine import ContractError, left_out, unsupported
 from comparators.engine_output import terminal_stream
+from comparators.interrupt import EXIT_INTERRUPTED
 from comparators.parity import ParityError
 from comparators.summary import summarize
 from comparators.trajectory import atomic_path
@@ -477,6 +479,14 @@ def main(argv: list[str] | None = None) -> int:
     except ContractError as exc:
         print(f"rigidbench: engine error: {exc}", file=sys.stderr)
         return EXIT_PARITY
+    except KeyboardInterrupt:
+        # The pools have stopped their workers on the way out (`comparators.interrupt`) and
+        # every file is written through `atomic_path`: nothing half-written, no worker left.
+        print(
+            f"rigidbench: interrupted: {args.command} stopped, nothing half-written",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
     finally:
         if terminal is not sys.stdout:
             terminal.close()

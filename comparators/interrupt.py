@@ -1,0 +1,87 @@
+"""Process pools that stop when the user stops: Ctrl-C, or the parent killed outright.
+
+Every pool of the suite (the sweep's, the compile warm-up's, the figures') is a `worker_pool`.
+Its workers ignore SIGINT, so the parent alone decides what an interrupt means, and on Linux
+ask the kernel to SIGKILL them when their parent dies (`prctl(PR_SET_PDEATHSIG)`): a parent
+killed with SIGKILL leaves no orphans. When anything, KeyboardInterrupt included, leaves the
+`with` block, the pool's queued work is cancelled and its workers are stopped at once instead of
+waiting for the running tasks (`ProcessPoolExecutor.__exit__` would wait for them): SIGTERM
+first, which lets a worker writing a file through `atomic_path` remove its temporary, then
+SIGKILL for any still there after `TERM_GRACE_S` (a worker inside a compiled call runs no Python
+signal handler until the call returns).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import multiprocessing
+import os
+import signal
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
+
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a command stopped by Ctrl-C
+TERM_GRACE_S = 0.5  # a drawing worker finishes its current Python statement in milliseconds
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def die_with_parent() -> None:
+    """Ask the kernel to SIGKILL this process when its parent dies (Linux; elsewhere nothing)."""
+    if not sys.platform.startswith("linux"):
+        return
+    libc = ctypes.CDLL(None, use_errno=True)
+    parent = os.getppid()
+    libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    if os.getppid() != parent:  # the parent died before prctl took effect
+        os._exit(1)
+
+
+def _leave(signum, frame):
+    raise SystemExit(EXIT_INTERRUPTED)
+
+
+def _worker_init(initializer, initargs) -> None:
+    """Runs first in every worker: the parent handles Ctrl-C; SIGTERM unwinds (finally blocks
+    and `atomic_path` clean up); the worker dies with its parent."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _leave)
+    die_with_parent()
+    if initializer is not None:
+        initializer(*initargs)
+
+
+@contextmanager
+def worker_pool(jobs: int, initializer=None, initargs=()):
+    """A fork `ProcessPoolExecutor` of `jobs` workers as described above; on leaving the block
+    by an exception its workers are stopped without waiting for their tasks."""
+    pool = ProcessPoolExecutor(
+        max_workers=jobs,
+        mp_context=multiprocessing.get_context("fork"),
+        initializer=_worker_init,
+        initargs=(initializer, initargs),
+    )
+    try:
+        yield pool
+    except BaseException:
+        stop_pool(pool)
+        raise
+    pool.shutdown(wait=True)
+
+
+def stop_pool(pool: ProcessPoolExecutor) -> None:
+    """Cancel `pool`'s queued work and end its workers now: SIGTERM, then SIGKILL after
+    `TERM_GRACE_S`; returns when every worker has been reaped."""
+    processes = list((pool._processes or {}).values())  # no public accessor for the workers
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        if process.is_alive():
+            process.terminate()
+    deadline = time.monotonic() + TERM_GRACE_S
+    for process in processes:
+        process.join(max(0.0, deadline - time.monotonic()))
+    for process in processes:
+        if process.is_alive():
+            process.kill()
+        process.join()
