@@ -39,6 +39,11 @@ def die_with_parent() -> None:
 
 
 def _leave(signum, frame):
+    """SIGTERM in a worker: unwind quietly (what the unwinding interrupts, a compilation for
+    one, would print its traceback onto the user's terminal)."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 2)
+    sys.stderr = open(devnull, "w")  # noqa: SIM115 (the process is ending)
     raise SystemExit(EXIT_INTERRUPTED)
 
 
@@ -85,3 +90,14 @@ def stop_pool(pool: ProcessPoolExecutor) -> None:
         if process.is_alive():
             process.kill()
         process.join()
+
+
+def in_child(fn, *args):
+    """`fn(*args)` in a forked worker (a `worker_pool` of one), its result or exception here.
+
+    For a long single run the main process would make as one compiled call (the reference
+    simulator steps a whole run in one numba call, which runs no Python signal handler until it
+    returns): in a child, Ctrl-C stops it at once. `fn`, its arguments and result are pickled.
+    """
+    with worker_pool(1) as pool:
+        return pool.submit(fn, *args).result()

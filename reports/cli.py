@@ -28,7 +28,7 @@ from cases.catalog import CUBE_RAIN_MAX, CUBE_RAIN_PREFIX, CUBE_RAIN_REPRESENTAT
 from comparators import ENGINES, get_engine, run
 from comparators.engine import ContractError, left_out, unsupported
 from comparators.engine_output import terminal_stream
-from comparators.interrupt import EXIT_INTERRUPTED
+from comparators.interrupt import EXIT_INTERRUPTED, in_child
 from comparators.parity import ParityError
 from comparators.summary import summarize
 from comparators.trajectory import atomic_path
@@ -139,7 +139,7 @@ def _cmd_run(args, console: Console) -> None:
     if args.out is not None and not args.out.lower().endswith((".csv", ".parquet")):
         raise InputError(f"--out {args.out!r}: expected a file name ending in .csv or .parquet")
     with console.status(f"running {scene.name} on {args.engine}", spinner="dots"):
-        traj = run(scene, args.engine, args.integrator, args.dt, args.duration)
+        traj = in_child(run, scene, args.engine, args.integrator, args.dt, args.duration)
     summary = summarize(traj, scene)
     if args.out:
         traj.write(args.out)
@@ -206,7 +206,7 @@ def _cached_run(scene, engine: str, integrator: str, dt: float, duration: float,
         traj = cache.get(key)
         if traj is not None:
             return traj
-    traj, error = attempt_run(scene, engine, integrator, dt, duration)
+    traj, error = in_child(attempt_run, scene, engine, integrator, dt, duration)
     if traj is None:
         return error
     cache.put(keys[-1], traj)
