@@ -76,10 +76,15 @@ def worker_pool(jobs: int, initializer=None, initargs=()):
 
 
 def stop_pool(pool: ProcessPoolExecutor) -> None:
-    """Cancel `pool`'s queued work and end its workers now: SIGTERM, then SIGKILL after
-    `TERM_GRACE_S`; returns when every worker has been reaped."""
+    """Cancel `pool`'s queued work and end its workers now (`stop_processes`)."""
     processes = list((pool._processes or {}).values())  # no public accessor for the workers
     pool.shutdown(wait=False, cancel_futures=True)
+    stop_processes(processes)
+
+
+def stop_processes(processes) -> None:
+    """SIGTERM each of `processes`, SIGKILL those still alive after `TERM_GRACE_S`; returns when
+    every one has been reaped."""
     for process in processes:
         if process.is_alive():
             process.terminate()
@@ -92,12 +97,41 @@ def stop_pool(pool: ProcessPoolExecutor) -> None:
         process.join()
 
 
-def in_child(fn, *args):
-    """`fn(*args)` in a forked worker (a `worker_pool` of one), its result or exception here.
+def in_child(fn, *args, **kwargs):
+    """`fn(*args, **kwargs)` in a forked child (a worker as above); its result, or its exception
+    raised here.
 
-    For a long single run the main process would make as one compiled call (the reference
-    simulator steps a whole run in one numba call, which runs no Python signal handler until it
-    returns): in a child, Ctrl-C stops it at once. `fn`, its arguments and result are pickled.
+    For long work the main process would do in compiled calls (the reference simulator steps a
+    whole run in one numba call, which runs no Python signal handler until it returns): in a
+    child, Ctrl-C stops it at once. Forked, so `fn` and its arguments (a console, a closure) are
+    not pickled; the result and exception are.
     """
-    with worker_pool(1) as pool:
-        return pool.submit(fn, *args).result()
+    context = multiprocessing.get_context("fork")
+    receiver, sender = context.Pipe(duplex=False)
+
+    def child() -> None:
+        _worker_init(None, ())
+        try:
+            outcome = (True, fn(*args, **kwargs))
+        except Exception as exc:
+            outcome = (False, exc)
+        sender.send(outcome)
+
+    process = context.Process(target=child)
+    process.start()
+    sender.close()
+    try:
+        succeeded, value = receiver.recv()
+    except EOFError:
+        raise RuntimeError(
+            f"{fn.__name__} ended without a result: exit {process.exitcode}"
+        ) from None
+    except BaseException:
+        stop_processes([process])
+        raise
+    finally:
+        receiver.close()
+    process.join()
+    if succeeded:
+        return value
+    raise value

@@ -266,7 +266,7 @@ def _cmd_bench(args, console: Console) -> None:
     start = time.perf_counter()
     with console.status("compiling the reference simulator", spinner="dots"):
         warm_up(engines)
-    table = bench(scenes, engines, args.dt, args.duration, args.repeats, console=console)
+    table = in_child(bench, scenes, engines, args.dt, args.duration, args.repeats, console=console)
     console.print(_throughput_console_table(table, "stepping throughput (steps/s, stepping only)"))
     closing = f"bench: {len(table)} rows in {time.perf_counter() - start:.1f} s"
     if out is not None:
