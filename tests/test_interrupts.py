@@ -123,7 +123,10 @@ def test_report_interrupted_stops_workers_and_keeps_cache_whole(tmp_path):
     assert status == EXIT_INTERRUPTED, stderr
     assert stderr.strip().splitlines()[-1].startswith("rigidbench: interrupted:"), stderr
     assert "Traceback" not in stderr, stderr
-    assert not [pid for pid in workers if running(pid)], "workers left after the interrupt"
+    left = [pid for pid in workers if running(pid)]
+    for pid in left:
+        os.kill(pid, signal.SIGKILL)
+    assert not left, "workers left after the interrupt"
     assert not temporaries(out), temporaries(out)
     for entry in (out / "cache").glob("*"):  # only whole entries: each one reads back
         Trajectory.read(entry)
@@ -152,7 +155,10 @@ def test_workers_exit_when_their_parent_is_killed(tmp_path):
     deadline = time.monotonic() + ORPHAN_EXIT_S
     while time.monotonic() < deadline and any(running(pid) for pid in workers):
         time.sleep(0.05)
-    assert not [pid for pid in workers if running(pid)], "workers outlived their parent"
+    orphans = [pid for pid in workers if running(pid)]
+    for pid in orphans:  # leave none behind on the test machine either
+        os.kill(pid, signal.SIGKILL)
+    assert not orphans, "workers outlived their parent"
 
 
 def test_pool_left_by_an_exception_does_not_wait_for_its_tasks():
