@@ -18,6 +18,7 @@ import multiprocessing
 import os
 import signal
 import sys
+import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
@@ -25,6 +26,41 @@ from contextlib import contextmanager
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a command stopped by Ctrl-C
 TERM_GRACE_S = 0.5  # a drawing worker finishes its current Python statement in milliseconds
 _PR_SET_PDEATHSIG = 1  # linux/prctl.h
+_interrupted = False
+
+
+@contextmanager
+def catching_interrupts():
+    """Within the block Ctrl-C raises KeyboardInterrupt as usual and is remembered for `check`
+    (in the main thread; elsewhere signals cannot be handled and nothing changes)."""
+    global _interrupted
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    _interrupted = False
+    previous = signal.signal(signal.SIGINT, _on_sigint)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _on_sigint(signum, frame):
+    global _interrupted
+    _interrupted = True
+    # numba's compiler calls back into Python through ctypes (llvmlite's object cache), and an
+    # exception raised in such a callback is printed and dropped: there, only remember it.
+    while frame is not None:
+        if "llvmlite" in frame.f_code.co_filename:
+            return
+        frame = frame.f_back
+    raise KeyboardInterrupt
+
+
+def check() -> None:
+    """Raise KeyboardInterrupt if Ctrl-C came while it could not be raised (see `_on_sigint`)."""
+    if _interrupted:
+        raise KeyboardInterrupt
 
 
 def die_with_parent() -> None:

@@ -36,6 +36,7 @@ from rich.progress import (
 from cases.errors import InputError
 from cases.exact import exact_trajectory_available
 from cases.scene import Scene
+from comparators import interrupt
 from comparators.cache import RESULT_PACKAGES, ResultsCache, code_version, run_key
 from comparators.engine import ENGINES, unsupported
 from comparators.interrupt import worker_pool
@@ -246,6 +247,7 @@ def warm_up(engines: list[str]) -> None:
             list(pool.map(compile_stages, COMPILE_GROUPS))
         for stage in COMPILE_STAGES:
             compile_stage(stage)
+            interrupt.check()  # loading compiled code defers Ctrl-C
 
 
 class LocalExecutor:
@@ -346,6 +348,7 @@ def run_sweep(
                 trajectories[spec] = traj
                 analyses[spec] = analysis
             bar.update(task, advance=1, description=spec.label)
+            interrupt.check()
     scenes = {spec.scene.name: spec.scene for spec in specs}
     results, references, measured = _results(specs, keys, trajectories, analyses, failures)
     return SweepResult(

@@ -28,7 +28,7 @@ from cases.catalog import CUBE_RAIN_MAX, CUBE_RAIN_PREFIX, CUBE_RAIN_REPRESENTAT
 from comparators import ENGINES, get_engine, run
 from comparators.engine import ContractError, left_out, unsupported
 from comparators.engine_output import terminal_stream
-from comparators.interrupt import EXIT_INTERRUPTED, in_child
+from comparators.interrupt import EXIT_INTERRUPTED, catching_interrupts, check, in_child
 from comparators.parity import ParityError
 from comparators.summary import summarize
 from comparators.trajectory import atomic_path
@@ -469,7 +469,9 @@ def main(argv: list[str] | None = None) -> int:
     terminal = terminal_stream()
     console = Console(file=terminal)
     try:
-        status = COMMANDS[args.command](args, console) or 0
+        with catching_interrupts():
+            status = COMMANDS[args.command](args, console) or 0
+            check()  # a Ctrl-C that came inside a compiler callback and could not stop the command
     except InputError as exc:
         print(f"rigidbench: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -80,10 +80,23 @@ def descendants(pid: int) -> set[int]:
     return found
 
 
+def forks(pid: int) -> set[int]:
+    """The processes below `pid` forked from it (the same command line): its workers, not what
+    an import runs on the side (glfw runs a subprocess to check its library's version)."""
+
+    def command(process: int) -> bytes:
+        try:
+            return Path(f"/proc/{process}/cmdline").read_bytes()
+        except OSError:
+            return b""
+
+    return {child for child in descendants(pid) if command(child) == command(pid)}
+
+
 def wait_for_workers(process: subprocess.Popen, count: int) -> set[int]:
     deadline = time.monotonic() + STARTUP_S
     while time.monotonic() < deadline:
-        workers = descendants(process.pid)
+        workers = forks(process.pid)
         if len(workers) >= count:
             return workers
         assert process.poll() is None, f"ended before its workers started: {process.stderr.read()}"
@@ -118,7 +131,7 @@ def test_report_interrupted_stops_workers_and_keeps_cache_whole(tmp_path):
     )  # fmt: skip
     workers = wait_for_workers(report, 2)
     time.sleep(1.0)  # into the warm-up or the sweep: an interrupt anywhere must be clean
-    workers |= descendants(report.pid)
+    workers |= forks(report.pid)
     status, _, stderr = interrupt(report)
     assert status == EXIT_INTERRUPTED, stderr
     assert stderr.strip().splitlines()[-1].startswith("rigidbench: interrupted:"), stderr
