@@ -145,15 +145,30 @@ def test_report_interrupted_stops_workers_and_keeps_cache_whole(tmp_path):
         Trajectory.read(entry)
 
 
-def test_run_interrupted_inside_a_compiled_call(tmp_path):
-    run = start(
-        "run", str(slow_case(tmp_path)), "--engine", "reference", "--out", "slow.csv", cwd=tmp_path
-    )
-    wait_for_workers(run, 1)  # the run's child, stepping in one numba call for minutes
-    time.sleep(1.0)
-    status, _, stderr = interrupt(run)
+# The commands that step in the main process's child (`comparators.interrupt.in_child`): each of
+# them is inside one compiled call of minutes when interrupted. CASE is `slow_case`'s file.
+SINGLE_RUN_COMMANDS = {
+    "run": ("run", "CASE", "--engine", "reference", "--out", "out.csv"),
+    "bench": ("bench", "--cases", "CASE", "--engines", "reference", "--duration", "1e5",
+              "--out", "out.csv"),
+    "animate": ("animate", "CASE", "--engines", "reference", "--out", "out.gif"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("command", sorted(SINGLE_RUN_COMMANDS))
+def test_command_interrupted_inside_a_compiled_call(command, tmp_path):
+    case = str(slow_case(tmp_path))
+    args = [case if arg == "CASE" else arg for arg in SINGLE_RUN_COMMANDS[command]]
+    process = start(*args, cwd=tmp_path)
+    workers = wait_for_workers(process, 1)
+    time.sleep(1.0)  # into the run
+    workers |= forks(process.pid)
+    status, _, stderr = interrupt(process)
     assert status == EXIT_INTERRUPTED, stderr
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["slow_spin.toml"]
+    assert "Traceback" not in stderr, stderr
+    assert not [pid for pid in workers if running(pid)], "workers left after the interrupt"
+    assert not list(tmp_path.glob("out.*")), "an output of an interrupted command"
+    assert not temporaries(tmp_path), temporaries(tmp_path)
 
 
 def test_workers_exit_when_their_parent_is_killed(tmp_path):
