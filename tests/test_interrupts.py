@@ -149,7 +149,7 @@ def test_report_interrupted_stops_workers_and_keeps_cache_whole(tmp_path):
 # them is inside one compiled call of minutes when interrupted. CASE is `slow_case`'s file.
 SINGLE_RUN_COMMANDS = {
     "run": ("run", "CASE", "--engine", "reference", "--out", "out.csv"),
-    "bench": ("bench", "--cases", "CASE", "--engines", "reference", "--duration", "1e5",
+    "bench": ("bench", "--cases", "CASE", "--engines", "reference", "--duration", "1e6",
               "--out", "out.csv"),
     "animate": ("animate", "CASE", "--engines", "reference", "--out", "out.gif"),
 }  # fmt: skip
