@@ -14,11 +14,10 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import multiprocessing
 import os
 import platform
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -37,8 +36,10 @@ from rich.progress import (
 from cases.errors import InputError
 from cases.exact import exact_trajectory_available
 from cases.scene import Scene
+from comparators import interrupt
 from comparators.cache import RESULT_PACKAGES, ResultsCache, code_version, run_key
 from comparators.engine import ENGINES, unsupported
+from comparators.interrupt import worker_pool
 from comparators.metrics import pose_errors_between
 from comparators.outcomes import OUTCOME_COLUMNS, outcomes
 from comparators.summary import summarize
@@ -242,23 +243,23 @@ def warm_up(engines: list[str]) -> None:
     """Compile the reference simulator before workers fork from this process: its
     `COMPILE_GROUPS` in parallel processes (they write numba's cache), then load it all here."""
     if "reference" in engines:
-        ctx = multiprocessing.get_context("fork")
-        with ProcessPoolExecutor(max_workers=len(COMPILE_GROUPS), mp_context=ctx) as pool:
+        with worker_pool(len(COMPILE_GROUPS)) as pool:
             list(pool.map(compile_stages, COMPILE_GROUPS))
         for stage in COMPILE_STAGES:
             compile_stage(stage)
+            interrupt.check()  # loading compiled code defers Ctrl-C
 
 
 class LocalExecutor:
-    """A process pool on this machine (fork: workers inherit the compiled simulator)."""
+    """A process pool on this machine (fork: workers inherit the compiled simulator); an
+    interrupt stops its workers at once (`comparators.interrupt`)."""
 
     def __init__(self, jobs: int):
         self.jobs = jobs
         self.name = f"local process pool, {jobs} worker(s)"
 
     def map_unordered(self, fn, items):
-        ctx = multiprocessing.get_context("fork")
-        with ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx) as pool:
+        with worker_pool(self.jobs) as pool:
             futures = {pool.submit(fn, item): item for item in items}
             for future in as_completed(futures):
                 yield futures[future], future.result()
@@ -347,6 +348,7 @@ def run_sweep(
                 trajectories[spec] = traj
                 analyses[spec] = analysis
             bar.update(task, advance=1, description=spec.label)
+            interrupt.check()
     scenes = {spec.scene.name: spec.scene for spec in specs}
     results, references, measured = _results(specs, keys, trajectories, analyses, failures)
     return SweepResult(

@@ -2,7 +2,8 @@
 `reports.arguments`.
 
 Bad input (unknown case, engine or integrator, malformed case file, NaN dt) is reported as one
-line on stderr with exit status 2 and no traceback; nothing is written.
+line on stderr with exit status 2 and no traceback; nothing is written. Ctrl-C is one line and
+exit status 130, with every worker process stopped and no file half-written.
 
 The terminal shows progress and one closing line saying what was written where. What engines
 print or warn goes into each run's record (`comparators.engine_output`), not onto the terminal:
@@ -29,6 +30,7 @@ from comparators import ENGINES, get_engine, run
 from comparators.cache import CacheWarning
 from comparators.engine import ContractError, left_out, unsupported
 from comparators.engine_output import terminal_stream
+from comparators.interrupt import EXIT_INTERRUPTED, catching_interrupts, check, in_child
 from comparators.parity import ParityError
 from comparators.summary import summarize
 from comparators.trajectory import atomic_path
@@ -139,7 +141,7 @@ def _cmd_run(args, console: Console) -> None:
     if args.out is not None and not args.out.lower().endswith((".csv", ".parquet")):
         raise InputError(f"--out {args.out!r}: expected a file name ending in .csv or .parquet")
     with console.status(f"running {scene.name} on {args.engine}", spinner="dots"):
-        traj = run(scene, args.engine, args.integrator, args.dt, args.duration)
+        traj = in_child(run, scene, args.engine, args.integrator, args.dt, args.duration)
     summary = summarize(traj, scene)
     if args.out:
         traj.write(args.out)
@@ -206,7 +208,7 @@ def _cached_run(scene, engine: str, integrator: str, dt: float, duration: float,
         traj = cache.get(key)
         if traj is not None:
             return traj
-    traj, error = attempt_run(scene, engine, integrator, dt, duration)
+    traj, error = in_child(attempt_run, scene, engine, integrator, dt, duration)
     if traj is None:
         return error
     cache.put(keys[-1], traj)
@@ -266,7 +268,7 @@ def _cmd_bench(args, console: Console) -> None:
     start = time.perf_counter()
     with console.status("compiling the reference simulator", spinner="dots"):
         warm_up(engines)
-    table = bench(scenes, engines, args.dt, args.duration, args.repeats, console=console)
+    table = in_child(bench, scenes, engines, args.dt, args.duration, args.repeats, console=console)
     console.print(_throughput_console_table(table, "stepping throughput (steps/s, stepping only)"))
     closing = f"bench: {len(table)} rows in {time.perf_counter() - start:.1f} s"
     if out is not None:
@@ -482,9 +484,10 @@ def main(argv: list[str] | None = None) -> int:
     terminal = terminal_stream()
     console = Console(file=terminal)
     try:
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), catching_interrupts():
             warnings.showwarning = _one_line_cache_warnings(warnings.showwarning)
             status = COMMANDS[args.command](args, console) or 0
+            check()  # a Ctrl-C that came inside a compiler callback and could not stop the command
     except InputError as exc:
         print(f"rigidbench: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -494,6 +497,14 @@ def main(argv: list[str] | None = None) -> int:
     except ContractError as exc:
         print(f"rigidbench: engine error: {exc}", file=sys.stderr)
         return EXIT_PARITY
+    except KeyboardInterrupt:
+        # The pools have stopped their workers on the way out (`comparators.interrupt`) and
+        # every file is written through `atomic_path`: nothing half-written, no worker left.
+        print(
+            f"rigidbench: interrupted: {args.command} stopped, nothing half-written",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
     finally:
         if terminal is not sys.stdout:
             terminal.close()

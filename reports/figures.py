@@ -8,15 +8,14 @@ the two figures across cases. How each figure is drawn is `reports.plots`, how a
 
 from __future__ import annotations
 
-import multiprocessing
 import os
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import pandas as pd
 
 from comparators.bench import throughput_from_results
 from comparators.engine import ENGINES
+from comparators.interrupt import worker_pool
 from comparators.sweep import HARD_TAG, SweepResult
 from comparators.trajectory import Trajectory
 from reports import animation, plots
@@ -122,7 +121,7 @@ def write_case_figures(
     if jobs <= 1:
         drawn = [_draw(task) for task in tasks]
     else:
-        with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("fork")) as pool:
+        with worker_pool(jobs) as pool:
             drawn = list(pool.map(_draw, tasks))
     return {key: path for figures in drawn for key, path in figures.items()}
 

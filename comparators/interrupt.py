@@ -1,0 +1,173 @@
+"""Process pools that stop when the user stops: Ctrl-C, or the parent killed outright.
+
+Every pool of the suite (the sweep's, the compile warm-up's, the figures') is a `worker_pool`.
+Its workers ignore SIGINT, so the parent alone decides what an interrupt means, and on Linux
+ask the kernel to SIGKILL them when their parent dies (`prctl(PR_SET_PDEATHSIG)`): a parent
+killed with SIGKILL leaves no orphans. When anything, KeyboardInterrupt included, leaves the
+`with` block, the pool's queued work is cancelled and its workers are stopped at once instead of
+waiting for the running tasks (`ProcessPoolExecutor.__exit__` would wait for them): SIGTERM
+first, which lets a worker writing a file through `atomic_path` remove its temporary, then
+SIGKILL for any still there after `TERM_GRACE_S` (a worker inside a compiled call runs no Python
+signal handler until the call returns).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import multiprocessing
+import os
+import signal
+import sys
+import threading
+import time
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
+
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a command stopped by Ctrl-C
+TERM_GRACE_S = 0.5  # a drawing worker finishes its current Python statement in milliseconds
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
+_interrupted = False
+
+
+@contextmanager
+def catching_interrupts():
+    """Within the block Ctrl-C raises KeyboardInterrupt as usual and is remembered for `check`
+    (in the main thread; elsewhere signals cannot be handled and nothing changes)."""
+    global _interrupted
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    _interrupted = False
+    previous = signal.signal(signal.SIGINT, _on_sigint)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _on_sigint(signum, frame):
+    global _interrupted
+    _interrupted = True
+    # numba's compiler calls back into Python through ctypes (llvmlite's object cache), and an
+    # exception raised in such a callback is printed and dropped: there, only remember it.
+    while frame is not None:
+        if "llvmlite" in frame.f_code.co_filename:
+            return
+        frame = frame.f_back
+    raise KeyboardInterrupt
+
+
+def check() -> None:
+    """Raise KeyboardInterrupt if Ctrl-C came while it could not be raised (see `_on_sigint`)."""
+    if _interrupted:
+        raise KeyboardInterrupt
+
+
+def die_with_parent() -> None:
+    """Ask the kernel to SIGKILL this process when its parent dies (Linux; elsewhere nothing)."""
+    if not sys.platform.startswith("linux"):
+        return
+    libc = ctypes.CDLL(None, use_errno=True)
+    parent = os.getppid()
+    libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    if os.getppid() != parent:  # the parent died before prctl took effect
+        os._exit(1)
+
+
+def _leave(signum, frame):
+    """SIGTERM in a worker: unwind quietly (what the unwinding interrupts, a compilation for
+    one, would print its traceback onto the user's terminal)."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 2)
+    sys.stderr = open(devnull, "w")  # noqa: SIM115 (the process is ending)
+    raise SystemExit(EXIT_INTERRUPTED)
+
+
+def _worker_init(initializer, initargs) -> None:
+    """Runs first in every worker: the parent handles Ctrl-C; SIGTERM unwinds (finally blocks
+    and `atomic_path` clean up); the worker dies with its parent."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _leave)
+    die_with_parent()
+    if initializer is not None:
+        initializer(*initargs)
+
+
+@contextmanager
+def worker_pool(jobs: int, initializer=None, initargs=()):
+    """A fork `ProcessPoolExecutor` of `jobs` workers as described above; on leaving the block
+    by an exception its workers are stopped without waiting for their tasks."""
+    pool = ProcessPoolExecutor(
+        max_workers=jobs,
+        mp_context=multiprocessing.get_context("fork"),
+        initializer=_worker_init,
+        initargs=(initializer, initargs),
+    )
+    try:
+        yield pool
+    except BaseException:
+        stop_pool(pool)
+        raise
+    pool.shutdown(wait=True)
+
+
+def stop_pool(pool: ProcessPoolExecutor) -> None:
+    """Cancel `pool`'s queued work and end its workers now (`stop_processes`)."""
+    processes = list((pool._processes or {}).values())  # no public accessor for the workers
+    pool.shutdown(wait=False, cancel_futures=True)
+    stop_processes(processes)
+
+
+def stop_processes(processes) -> None:
+    """SIGTERM each of `processes`, SIGKILL those still alive after `TERM_GRACE_S`; returns when
+    every one has been reaped."""
+    for process in processes:
+        if process.is_alive():
+            process.terminate()
+    deadline = time.monotonic() + TERM_GRACE_S
+    for process in processes:
+        process.join(max(0.0, deadline - time.monotonic()))
+    for process in processes:
+        if process.is_alive():
+            process.kill()
+        process.join()
+
+
+def in_child(fn, *args, **kwargs):
+    """`fn(*args, **kwargs)` in a forked child (a worker as above); its result, or its exception
+    raised here.
+
+    For long work the main process would do in compiled calls (the reference simulator steps a
+    whole run in one numba call, which runs no Python signal handler until it returns): in a
+    child, Ctrl-C stops it at once. Forked, so `fn` and its arguments (a console, a closure) are
+    not pickled; the result and exception are.
+    """
+    context = multiprocessing.get_context("fork")
+    receiver, sender = context.Pipe(duplex=False)
+
+    def child() -> None:
+        _worker_init(None, ())
+        try:
+            outcome = (True, fn(*args, **kwargs))
+        except Exception as exc:
+            outcome = (False, exc)
+        sender.send(outcome)
+
+    process = context.Process(target=child)
+    process.start()
+    sender.close()
+    try:
+        succeeded, value = receiver.recv()
+    except EOFError:
+        raise RuntimeError(
+            f"{fn.__name__} ended without a result: exit {process.exitcode}"
+        ) from None
+    except BaseException:
+        stop_processes([process])
+        raise
+    finally:
+        receiver.close()
+    process.join()
+    if succeeded:
+        return value
+    raise value
