@@ -27,6 +27,7 @@ from comparators.trajectory import atomic_path
 from gates import DEFAULT_SLACK
 from gates.evaluate import RunGroup, measure_groups
 from gates.spec import WITHOUT_EXPECTED, load_gate_file
+from reports.outputs import output_file
 
 # Differences below these are noise, not a regression: a recorded limit is at least the floor.
 FLOORS = {
@@ -116,11 +117,8 @@ def record(
 
 
 def check_out(out: Path) -> None:
-    """--record OUT.toml: a .toml file in an existing directory."""
-    if out.suffix.lower() != ".toml":
-        raise InputError(f"--record {str(out)!r}: expected a file name ending in .toml")
-    if not out.parent.is_dir():
-        raise InputError(f"--record {str(out)!r}: directory {str(out.parent)!r} missing")
+    """--record OUT.toml: a .toml file in an existing writable directory."""
+    output_file(str(out), "--record", (".toml",))
 
 
 def _limits(result: pd.Series, outcomes: pd.DataFrame, slack: float) -> list[tuple[str, str]]:

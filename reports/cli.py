@@ -35,6 +35,7 @@ from comparators.parity import ParityError
 from comparators.summary import summarize
 from comparators.trajectory import atomic_path
 from reports.arguments import build_parser
+from reports.outputs import output_dir, output_file
 
 EXIT_BAD_INPUT = 2
 EXIT_PARITY = 3  # an engine's model or table is not the scene's: a bug in an adapter, not the input
@@ -138,8 +139,7 @@ def _cmd_show(args, console: Console) -> None:
 
 def _cmd_run(args, console: Console) -> None:
     scene = resolve_case(args.case)
-    if args.out is not None and not args.out.lower().endswith((".csv", ".parquet")):
-        raise InputError(f"--out {args.out!r}: expected a file name ending in .csv or .parquet")
+    output_file(args.out, "--out", (".csv", ".parquet"))
     with console.status(f"running {scene.name} on {args.engine}", spinner="dots"):
         traj = in_child(run, scene, args.engine, args.integrator, args.dt, args.duration)
     summary = summarize(traj, scene)
@@ -153,19 +153,6 @@ def _cmd_run(args, console: Console) -> None:
     console.print(table)
     if args.out:
         console.print(f"run: wrote {len(traj.table)} rows to {args.out}", markup=False)
-
-
-def _output_file(text: str | None, option: str, suffix: str) -> Path | None:
-    """An `option` FILE with `suffix`, checked before any run: the suffix and an existing
-    directory (None when the option is not given)."""
-    if not text:
-        return None
-    out = Path(text)
-    if out.suffix.lower() != suffix:
-        raise InputError(f"{option} {text!r}: expected a file name ending in {suffix}")
-    if not out.parent.is_dir():
-        raise InputError(f"{option} {text!r}: directory {str(out.parent)!r} missing")
-    return out
 
 
 def _animated_runs(args, scene, console: Console) -> list[tuple[str, str]]:
@@ -223,13 +210,13 @@ def _cmd_animate(args, console: Console) -> None:
     from reports.arguments import DEFAULT_OUT
 
     scene = resolve_case(args.case)
-    out = _output_file(args.out, "--out", ".gif")
+    out = output_file(args.out, "--out", (".gif",))
     pairs = _animated_runs(args, scene, console)
     dt = scene.dt if args.dt is None else args.dt
     duration = scene.duration if args.duration is None else args.duration
     if dt > duration:
         raise InputError(f"dt {dt} is longer than duration {duration}: expected dt <= duration")
-    cache = ResultsCache(Path(args.cache) if args.cache else DEFAULT_OUT / "cache")
+    cache = ResultsCache(output_dir(args.cache, "--cache") if args.cache else DEFAULT_OUT / "cache")
     runs = []
     with console.status(f"running {scene.name}", spinner="dots") as status:
         for engine, integrator in pairs:
@@ -260,7 +247,7 @@ def _cmd_bench(args, console: Console) -> None:
     from comparators.sweep import warm_up
     from reports.plots import plot_throughput
 
-    out = _output_file(args.out, "--out", ".csv")
+    out = output_file(args.out, "--out", (".csv",))
     scenes = _scenes(args.cases)
     engines = _engines(args.engines)
     plan_bench(scenes, engines, args.dt, args.duration)  # bad dt or duration: before any run
@@ -318,8 +305,8 @@ def _cmd_report(args, console: Console) -> None:
     scenes = _scenes(args.cases)
     engines = _engines(args.engines)
     executor = _executor(args)
-    out = Path(args.out)
-    cache = ResultsCache(Path(args.cache) if args.cache else out / "cache")
+    out = output_dir(args.out, "--out")
+    cache = ResultsCache(output_dir(args.cache, "--cache") if args.cache else out / "cache")
     with console.status("compiling the reference simulator", spinner="dots"):
         warm_up(engines)
     specs = plan(scenes, engines, quick=args.quick)
@@ -400,7 +387,7 @@ def _cmd_gate(args, console: Console) -> int:
         return _record_gates(args, console, start)
     if args.cases:
         raise InputError("--cases: only with --record OUT.toml (the gates name their cases)")
-    junit = _output_file(args.junit, "--junit", ".xml")
+    junit = output_file(args.junit, "--junit", (".xml",))
     gates = load_gates(_gate_paths(args))
     return _check_gates(args, console, gates, junit, start)
 
@@ -414,7 +401,7 @@ def _check_gates(args, console: Console, gates: list, junit: Path | None, start:
     from reports.arguments import DEFAULT_OUT
 
     plan_checks(gates, args.engine)  # a missing engine or integrator: before any run
-    cache = ResultsCache(Path(args.cache) if args.cache else DEFAULT_OUT / "cache")
+    cache = ResultsCache(output_dir(args.cache, "--cache") if args.cache else DEFAULT_OUT / "cache")
     executor = LocalExecutor(args.jobs)
     checks = evaluate(gates, cache, args.engine, executor=executor, console=console)
     console.print(_gate_console_table(checks))
@@ -446,7 +433,7 @@ def _record_gates(args, console: Console, start: float) -> int:
     if get_engine(args.engine).missing:
         raise InputError(f"engine {args.engine!r} is unavailable: {ENGINES[args.engine].missing}")
     scenes = list(zip(args.cases, _scenes(args.cases), strict=True))
-    cache = ResultsCache(Path(args.cache) if args.cache else DEFAULT_OUT / "cache")
+    cache = ResultsCache(output_dir(args.cache, "--cache") if args.cache else DEFAULT_OUT / "cache")
     executor = LocalExecutor(args.jobs)
     count = record(scenes, args.engine, out, cache, args.slack, executor=executor, console=console)
     console.print(f"gate: recorded {count} gates in {out.as_posix()}", markup=False, soft_wrap=True)
