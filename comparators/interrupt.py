@@ -21,6 +21,7 @@ import sys
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import process as futures_process
 from contextlib import contextmanager
 
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a command stopped by Ctrl-C
@@ -114,8 +115,16 @@ def worker_pool(jobs: int, initializer=None, initargs=()):
 def stop_pool(pool: ProcessPoolExecutor) -> None:
     """Cancel `pool`'s queued work and end its workers now (`stop_processes`)."""
     processes = list((pool._processes or {}).values())  # no public accessor for the workers
+    manager = pool._executor_manager_thread
     pool.shutdown(wait=False, cancel_futures=True)
     stop_processes(processes)
+    if manager is not None:
+        # Python 3.11's exit hook wakes every pool's manager thread it knows, also one that has
+        # closed its wake-up pipe after its workers died: "Bad file descriptor" at exit. Wait
+        # for the thread to finish and forget it.
+        manager.join(TERM_GRACE_S)
+        if not manager.is_alive():
+            futures_process._threads_wakeups.pop(manager, None)
 
 
 def stop_processes(processes) -> None:
