@@ -49,6 +49,7 @@ from typing import Any
 from cases.errors import InputError
 from cases.scene import Scene
 from cases.toml_io import resolve_case
+from comparators.sweep import RESULT_COLUMNS
 from reports.convergence import MIN_FIT_POINTS
 
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9_.-]+$")
@@ -57,31 +58,21 @@ REQUIRED_KEYS = ("name", "case", "limits")
 ALL_INTEGRATORS = "*"
 
 # Results-table columns a gate can limit: the numeric ones (`comparators.sweep.RESULT_COLUMNS`
-# without its labels and text).
-RESULT_MEASURES = (
-    "duration",
-    "steps",
-    "setup_s",
-    "wall_s",
-    "wall_min_s",
-    "wall_max_s",
-    "steps_per_s",
-    "realtime_factor",
-    "solver_sweeps",
-    "solver_at_limit",
-    "solver_subspace",
-    "solver_extrapolations",
-    "energy_drift",
-    "energy_gain",
-    "momentum_drift",
-    "angular_momentum_drift",
-    "position_error",
-    "orientation_error_deg",
-    "shape_error",
-    "rest_com_height",
-    "rest_height_error",
-    "engine_messages",
+# without its labels and text), derived so that a new results column is a measure at once.
+RESULT_LABELS = (
+    "case",
+    "engine",
+    "integrator",
+    "dt",
+    "repeats",
+    "reference",
+    "first_engine_message",
+    "verdict",
+    "engine_version",
+    "code_version",
+    "key",
 )
+RESULT_MEASURES = tuple(c for c in RESULT_COLUMNS if c not in RESULT_LABELS)
 # The quantities `comparators.outcomes` measures (apex heights as apex_height_<k>); the per-body
 # ones are written `<body>.<quantity>` on scenes of several bodies, as the outcomes table does.
 OUTCOME_QUANTITIES = (

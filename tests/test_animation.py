@@ -2,14 +2,12 @@
 particles through the results cache, the `animate` command and its GIF, and the report's."""
 
 import dataclasses
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
+from test_cli import rigidbench
 from test_report import build_result
 
 from cases import CATALOG
@@ -184,19 +182,6 @@ def _cells_with_body(frame: np.ndarray, columns: int, rows: int) -> list[bool]:
             near = np.abs(cell - colour).sum(axis=-1) < 30
             cells.append(bool(near.sum() > 20))
     return cells
-
-
-def rigidbench(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    """The command from this checkout, run in `cwd`."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.run(
-        [sys.executable, "-m", "reports.cli", *args],
-        capture_output=True,
-        text=True,
-        timeout=600,
-        cwd=cwd,
-        env=env,
-    )
 
 
 def test_animate_writes_one_panel_per_run_and_one_frame_per_sample(tmp_path):
