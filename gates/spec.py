@@ -41,14 +41,13 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from cases.errors import InputError
 from cases.scene import Scene
-from cases.toml_io import resolve_case
+from cases.toml_io import MAX_TOML_BYTES, read_toml, resolve_case
 from comparators.sweep import RESULT_COLUMNS
 from reports.convergence import MIN_FIT_POINTS
 
@@ -176,26 +175,18 @@ def is_gate_file(path: Path) -> bool:
     beside gate files are left alone. A file that does not parse counts when a line of it opens
     `[[gates]]`, so that a broken gate file is reported rather than skipped."""
     try:
-        text = path.read_bytes().decode("utf-8")
-    except (OSError, UnicodeDecodeError):
-        return False
-    try:
-        return isinstance(tomllib.loads(text).get("gates"), list)
-    except tomllib.TOMLDecodeError:
+        return isinstance(read_toml(path).get("gates"), list)
+    except InputError:
+        if not path.is_file() or path.stat().st_size > MAX_TOML_BYTES:
+            return False
+        text = path.read_bytes().decode("utf-8", errors="replace")
         return any(line.strip().startswith("[[gates]]") for line in text.splitlines())
 
 
 def load_gate_file(path: Path) -> list[Gate]:
     """The gates of one file, validated (see the module's docstring)."""
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_bytes().decode("utf-8"))
-    except OSError as err:
-        raise InputError(f"{path}: cannot read file: {err.strerror or err}") from err
-    except UnicodeDecodeError as err:
-        raise InputError(f"{path}: cannot read file: not UTF-8 text ({err.reason})") from err
-    except tomllib.TOMLDecodeError as err:
-        raise InputError(f"{path}: malformed TOML: {err}") from err
+    data = read_toml(path)
     extra = sorted(set(data) - {"gates"})
     if extra:
         raise InputError(f"{path}: unknown key '{extra[0]}' (expected one of: gates)")

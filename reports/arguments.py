@@ -16,6 +16,14 @@ from gates import DEFAULT_SLACK
 DEFAULT_OUT = Path("rigidbench-report")
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """A parser whose errors are one line, as every other error of the CLI: what is wrong and
+    where the usage is, without argparse's usage lines before it (exit status 2)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (usage: {self.prog} --help)\n")
+
+
 def parse_positive_number(text: str) -> float:
     """argparse type: a finite number > 0 (NaN and inf are refused with the option's name)."""
     try:
@@ -197,7 +205,7 @@ def _add_gate(sub) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The parser of every command: list, engines, show, run, animate, report, bench, gate."""
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="rigidbench", description="Validation and benchmark suite for rigid-body physics."
     )
     sub = parser.add_subparsers(dest="command", required=True)

@@ -110,12 +110,12 @@ def test_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, monkeypatc
     monkeypatch.chdir(tmp_path)
     try:
         status = main(args)
-    except SystemExit as done:  # argparse's own errors: usage, then the error line
+    except SystemExit as done:  # argparse's own errors leave through SystemExit
         status = done.code
     assert status == 2
     said = capsys.readouterr()
-    errors = [line for line in said.err.splitlines() if "error:" in line]
-    assert len(errors) == 1 and message in errors[0], said.err
+    lines = said.err.splitlines()
+    assert len(lines) == 1 and "error:" in lines[0] and message in lines[0], said.err
     assert "Traceback" not in said.err and said.out == ""
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.toml", "spin.toml"]
 
