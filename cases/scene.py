@@ -194,7 +194,9 @@ class Scene:
         """Steps between output samples when stepping with `dt`."""
         if self.sample_interval is None:
             return 1
-        return max(1, round(self.sample_interval / dt))
+        # clipped where it exceeds any step count (then only the first and last step are
+        # sampled), so that a tiny dt cannot make it overflow
+        return max(1, round(min(self.sample_interval / dt, 2.0**62)))
 
     def steps(self, dt: float, duration: float | None = None) -> int:
         """Number of steps of size `dt` covering `duration` (default: the scene's)."""

@@ -16,7 +16,6 @@ for the report.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -29,6 +28,7 @@ from cases.errors import InputError
 from cases.scene import Scene
 from comparators.engine import ENGINES, get_engine, unsupported
 from comparators.engine_output import message_count
+from comparators.limits import check_run
 from comparators.timing import BENCH_REPEATS, MIN_REPEATS, attempt_run, interleaved, spread
 from comparators.verdict import verdict
 
@@ -85,22 +85,15 @@ def plan_bench(
 ) -> list[list[BenchRun]]:
     """The runs, one block per case and dt, each listing every engine/integrator in registry
     order, leaving out engines that do not model the scene. `dts` None: each scene's own dt.
-    Bad names, dt or duration raise InputError."""
+    Bad names, and a dt or duration `comparators.limits.check_run` refuses, raise InputError."""
     for name in engines:
         get_engine(name)
     dts = None if dts is None else list(dts)
-    for value, what in [*((dt, "dt") for dt in dts or ()), (duration, "duration")]:
-        if value is not None and not (math.isfinite(value) and value > 0):
-            raise InputError(f"{what}: expected a finite number > 0, got {value!r}")
     blocks = []
     for scene in scenes:
         length = bench_duration(scene, duration)
         for dt in dts or [scene.dt]:
-            if dt > length:
-                raise InputError(
-                    f"dt {dt:g} is longer than the {length:g} s simulated for {scene.name!r}: "
-                    "expected dt <= duration"
-                )
+            check_run(scene, dt, length)
             block = [
                 BenchRun(scene, name, integrator, float(dt), float(length))
                 for name in engines

@@ -7,13 +7,13 @@ its reason, never run, and never in the way of the others.
 """
 
 import dataclasses
-import math
 from importlib import metadata
 from typing import Protocol
 
 from cases.errors import InputError
 from cases.scene import Scene
 from comparators.engine_output import NOTE_PREFIX, captured_output
+from comparators.limits import check_run
 from comparators.parity import ParityError, check_parity
 from comparators.trajectory import COLUMNS, Trajectory
 
@@ -169,8 +169,9 @@ def run(
     """Run `scene` on the named engine; None means the engine's or the scene's default.
 
     Bad names, an unavailable engine (`missing`: its package absent, or a plugin that failed to
-    load), a scene the engine does not model (`unsupported`), and non-positive or non-finite dt
-    or duration raise `InputError`; a result that is not the trajectory table of the scene's
+    load), a scene the engine does not model (`unsupported`), and a dt or duration that is not
+    a finite number > 0 or makes the run larger than its limits (`comparators.limits`) raise
+    `InputError`; a result that is not the trajectory table of the scene's
     bodies raises `ContractError`, and a model that differs from the scene at t = 0
     `comparators.parity.ParityError`.
 
@@ -193,11 +194,7 @@ def run(
         )
     dt = scene.dt if dt is None else dt
     duration = scene.duration if duration is None else duration
-    for key, value in (("dt", dt), ("duration", duration)):
-        if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-            raise InputError(f"{key}: expected a finite number > 0, got {value!r}")
-    if dt > duration:
-        raise InputError(f"dt {dt} is longer than duration {duration}: expected dt <= duration")
+    check_run(scene, dt, duration)
     output = None
     try:
         with captured_output() as output:

@@ -40,6 +40,7 @@ from comparators import interrupt
 from comparators.cache import RESULT_PACKAGES, ResultsCache, code_version, run_key
 from comparators.engine import ENGINES, unsupported
 from comparators.interrupt import worker_pool
+from comparators.limits import check_run
 from comparators.metrics import pose_errors_between
 from comparators.outcomes import OUTCOME_COLUMNS, outcomes
 from comparators.summary import summarize
@@ -177,6 +178,7 @@ def plan(
     scenes tagged "hard" or longer than LONG_CASE_S QUICK_HARD_DT_FACTORS with at most
     QUICK_HARD_REPEATS timings. Scenes an engine does not model
     (`comparators.engine.unsupported`) are left out for it (`comparators.engine.left_out`).
+    A run over the limits (`comparators.limits.check_run`) raises `InputError`.
     """
 
     def long(scene: Scene) -> bool:
@@ -213,6 +215,8 @@ def plan(
     ordered = []
     for group in itertools.zip_longest(*per_engine.values()):
         ordered.extend(spec for spec in group if spec is not None)
+    for spec in ordered:
+        check_run(spec.scene, spec.dt, spec.scene.duration)  # over the limits: before any run
     return ordered
 
 

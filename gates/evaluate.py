@@ -27,6 +27,7 @@ from cases.errors import InputError
 from cases.scene import Scene
 from comparators.cache import ResultsCache, run_key
 from comparators.engine import ENGINES, get_engine, unsupported
+from comparators.limits import check_run
 from comparators.sweep import QUICK_HARD_REPEATS, LocalExecutor, RunSpec, run_sweep, warm_up
 from comparators.timing import SWEEP_REPEATS
 from gates.spec import ALL_INTEGRATORS, RESULT_MEASURES, Gate, Limit, measure_parts
@@ -121,9 +122,15 @@ def integrators(gate: Gate, engine: str) -> tuple[str, ...]:
 
 def plan_checks(gates: list[Gate], engine: str | None = None) -> list[Check]:
     """Every check of `gates` in order (gate, integrator, limit, dt), on `engine` when given;
-    raises `InputError` for a gate without an engine, an unknown engine or integrator."""
+    raises `InputError` for a gate without an engine, an unknown engine or integrator, or a
+    run over the limits (`comparators.limits`)."""
     checks = []
     for gate in gates:
+        for dt in gate.dts:
+            try:
+                check_run(gate.scene, dt, gate.scene.duration)
+            except InputError as err:
+                raise InputError(f"{gate.file}: gate '{gate.name}': {err}") from None
         name = target_engine(gate, engine)
         for integrator in integrators(gate, name):
             for limit in gate.limits:

@@ -9,6 +9,7 @@ import os
 from pathlib import Path
 
 from comparators.bench import BENCH_DURATION_S, MIN_REPEATS
+from comparators.limits import MAX_STEPS
 from gates import DEFAULT_SLACK
 
 # The report's folder, in the directory the command runs in: all a report writes (the results
@@ -55,6 +56,23 @@ def parse_repeats(text: str) -> int:
     return _parse_whole(text, MIN_REPEATS)
 
 
+def _add_limits(parser) -> None:
+    """The options that raise the limits of a run's size (`comparators.limits`)."""
+    parser.add_argument(
+        "--max-steps",
+        type=parse_count,
+        metavar="N",
+        help=f"refuse a run of more steps (default {MAX_STEPS:.0e})",
+    )
+    parser.add_argument(
+        "--max-recorded",
+        type=parse_count,
+        metavar="N",
+        help="refuse a run recording more particle positions, samples x particles "
+        "(default: a quarter of this machine's memory)",
+    )
+
+
 def _add_show(sub) -> None:
     show = sub.add_parser("show", help="a case as TOML (loads back to the same scene)")
     show.add_argument("case", help="catalog name or path to a .toml case file")
@@ -72,6 +90,7 @@ def _add_run(sub) -> None:
         "--duration", type=parse_positive_number, help="simulated time in s (default: the case's)"
     )
     run_p.add_argument("--out", help="write the trajectory table to FILE.csv or FILE.parquet")
+    _add_limits(run_p)
 
 
 def _add_selection(parser) -> None:
@@ -105,6 +124,7 @@ def _add_report(sub) -> None:
     rep.add_argument(
         "--jobs", type=parse_count, default=os.cpu_count() or 1, help="local worker processes"
     )
+    _add_limits(rep)
 
 
 def _add_animate(sub) -> None:
@@ -128,6 +148,7 @@ def _add_animate(sub) -> None:
     anim.add_argument(
         "--cache", help=f"results cache directory (default: ./{DEFAULT_OUT}/cache, the report's)"
     )
+    _add_limits(anim)
 
 
 def _add_bench(sub) -> None:
@@ -151,6 +172,7 @@ def _add_bench(sub) -> None:
         help=f"timed repeats per run, at least {MIN_REPEATS} (default {MIN_REPEATS})",
     )
     ben.add_argument("--out", help="write the table to FILE.csv and its plot to FILE.png")
+    _add_limits(ben)
 
 
 def parse_slack(text: str) -> float:
@@ -201,6 +223,7 @@ def _add_gate(sub) -> None:
     gate.add_argument(
         "--jobs", type=parse_count, default=os.cpu_count() or 1, help="local worker processes"
     )
+    _add_limits(gate)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -31,6 +31,7 @@ from comparators.cache import CacheWarning
 from comparators.engine import ContractError, left_out, unsupported
 from comparators.engine_output import terminal_stream
 from comparators.interrupt import EXIT_INTERRUPTED, catching_interrupts, check, in_child
+from comparators.limits import check_run, set_limits
 from comparators.parity import ParityError
 from comparators.summary import summarize
 from comparators.trajectory import atomic_path
@@ -140,6 +141,8 @@ def _cmd_show(args, console: Console) -> None:
 def _cmd_run(args, console: Console) -> None:
     scene = resolve_case(args.case)
     output_file(args.out, "--out", (".csv", ".parquet"))
+    dt = scene.dt if args.dt is None else args.dt
+    check_run(scene, dt, scene.duration if args.duration is None else args.duration)
     with console.status(f"running {scene.name} on {args.engine}", spinner="dots"):
         traj = in_child(run, scene, args.engine, args.integrator, args.dt, args.duration)
     summary = summarize(traj, scene)
@@ -214,8 +217,7 @@ def _cmd_animate(args, console: Console) -> None:
     pairs = _animated_runs(args, scene, console)
     dt = scene.dt if args.dt is None else args.dt
     duration = scene.duration if args.duration is None else args.duration
-    if dt > duration:
-        raise InputError(f"dt {dt} is longer than duration {duration}: expected dt <= duration")
+    check_run(scene, dt, duration)
     cache = ResultsCache(output_dir(args.cache, "--cache") if args.cache else DEFAULT_OUT / "cache")
     runs = []
     with console.status(f"running {scene.name}", spinner="dots") as status:
@@ -306,10 +308,11 @@ def _cmd_report(args, console: Console) -> None:
     engines = _engines(args.engines)
     executor = _executor(args)
     out = output_dir(args.out, "--out")
-    cache = ResultsCache(output_dir(args.cache, "--cache") if args.cache else out / "cache")
+    cache_dir = output_dir(args.cache, "--cache") if args.cache else out / "cache"
+    specs = plan(scenes, engines, quick=args.quick)  # a run over the limits: before compiling
+    cache = ResultsCache(cache_dir)
     with console.status("compiling the reference simulator", spinner="dots"):
         warm_up(engines)
-    specs = plan(scenes, engines, quick=args.quick)
     lines = _print_left_out(console, scenes, engines)
     result = run_sweep(specs, cache, executor, left_out=lines, console=console)
     # scaling after the sweep: none of the sweep's workers competes for the cores
@@ -471,6 +474,7 @@ def main(argv: list[str] | None = None) -> int:
     terminal = terminal_stream()
     console = Console(file=terminal)
     try:
+        set_limits(getattr(args, "max_steps", None), getattr(args, "max_recorded", None))
         with warnings.catch_warnings(), catching_interrupts():
             warnings.showwarning = _one_line_cache_warnings(warnings.showwarning)
             status = COMMANDS[args.command](args, console) or 0

@@ -282,7 +282,7 @@ BAD_INPUT = [
     (["animate", "tumbling_box", "--dt", "nan", "--out", "a.gif"], "expected a finite number > 0"),
     (
         ["animate", "tumbling_box", "--dt", "20", "--out", "a.gif"],
-        "dt 20.0 is longer than duration",
+        "dt 20 is longer than duration 10",
     ),
     (["animate", "tumbling_box"], "the following arguments are required: --out"),
 ]

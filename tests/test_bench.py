@@ -114,7 +114,7 @@ def test_cli_writes_the_table_and_its_plot(tmp_path, capsys):
     [
         (["--engines", "warp"], "unknown engine 'warp'"),
         (["--cases", "nope"], "unknown case 'nope'"),
-        (["--cases", "tumbling_box", "--dt", "20"], "dt 20 is longer than the 10 s simulated"),
+        (["--cases", "tumbling_box", "--dt", "20"], "dt 20 is longer than duration 10"),
         (["--out", "{tmp}/bench.txt"], "expected a file name ending in .csv"),
         (["--out", "{tmp}/missing/bench.csv"], "missing"),
     ],

@@ -77,7 +77,7 @@ BAD_TOML = 'name = "x"\nduration = 1.0\ndt = 0.01\ngravity = [0.0, 0.0]\n'
         (["run", "tumbling_box", "--integrator", "leapfrog"], "unknown integrator 'leapfrog'"),
         (["run", "tumbling_box", "--dt", "nan"], "expected a finite number > 0"),
         (["run", "tumbling_box", "--dt", "-1"], "expected a finite number > 0"),
-        (["run", "tumbling_box", "--dt", "20"], "dt 20.0 is longer than duration"),
+        (["run", "tumbling_box", "--dt", "20"], "dt 20 is longer than duration 10"),
         (["run", "tumbling_box", "--out", "t.txt"], "expected a file name ending in .csv"),
         (["run", "{bad}"], "key 'gravity': expected 3 numbers"),
         (["show", "{bad}"], "key 'gravity': expected 3 numbers"),
