@@ -12,13 +12,31 @@ from functools import cached_property
 from typing import Annotated
 
 import numpy as np
-from pydantic import ConfigDict, Field
+from pydantic import AfterValidator, ConfigDict, Field
 from pydantic.dataclasses import dataclass
 
 from rigidmath.inertia import center_of_mass, inertia_tensor
 
+# Every number of a scene is 0 or of a size between MIN_MAGNITUDE and MAX_MAGNITUDE, and so is
+# each body's principal moments, energies and momenta: the engines and the suite's metrics
+# multiply up to three such quantities (I w^2, m g h, a contact impulse times dt), which then
+# stay finite and normal in float64 (whose range is 1e-308 to 1e308).
+MAX_MAGNITUDE = 1e100
+MIN_MAGNITUDE = 1e-100
+
+
+def _magnitude(value: float) -> float:
+    """A number of a scene: 0, or of a size between MIN_MAGNITUDE and MAX_MAGNITUDE."""
+    if value != 0 and not MIN_MAGNITUDE <= abs(value) <= MAX_MAGNITUDE:
+        raise ValueError(
+            f"expected 0 or a number of size between {MIN_MAGNITUDE:g} and {MAX_MAGNITUDE:g} "
+            f"(beyond, products of such numbers leave float64's range), got {value!r}"
+        )
+    return value
+
+
 # Strict: a string or a boolean is not a number; NaN and inf are rejected everywhere.
-Num = Annotated[float, Field(strict=True, allow_inf_nan=False)]
+Num = Annotated[float, Field(strict=True, allow_inf_nan=False), AfterValidator(_magnitude)]
 PositiveNum = Annotated[Num, Field(gt=0)]
 Vec3 = tuple[Num, Num, Num]
 Particle = tuple[Num, Num, Num, PositiveNum]  # x, y, z, mass
@@ -33,6 +51,18 @@ SINGULAR_INERTIA_RATIO = 1e-12
 MIN_NORMAL_LENGTH = 1e-12
 
 ZERO3 = (0.0, 0.0, 0.0)
+
+
+def _within(body: str, quantity: str, value: float, key: str) -> None:
+    """ValueError naming body, quantity and `key` (what to change) unless `value` is 0 or its
+    size lies between MIN_MAGNITUDE and MAX_MAGNITUDE."""
+    size = abs(float(value))
+    if size != 0 and not MIN_MAGNITUDE <= size <= MAX_MAGNITUDE:
+        raise ValueError(
+            f"body {body!r}: its {quantity} is {size:.3g}, expected 0 or between "
+            f"{MIN_MAGNITUDE:g} and {MAX_MAGNITUDE:g} (larger or smaller, the engines' products "
+            f"of it leave float64's range): change '{key}'"
+        )
 
 
 @dataclass(frozen=True, config=_CONFIG)
@@ -93,6 +123,19 @@ class Body:
                 f"(principal moments {moments.round(12).tolist()}) "
                 "and omega = I^-1 L is undefined: expected at least three non-collinear particles"
             )
+        v, w = np.asarray(self.velocity), np.asarray(self.angular_velocity)
+        _within(self.name, "smallest principal moment (kg m^2)", moments[0], "particles")
+        _within(self.name, "largest principal moment (kg m^2)", moments[-1], "particles")
+        _within(self.name, "kinetic energy 1/2 m |v|^2 (J)", 0.5 * self.mass * v @ v, "velocity")
+        _within(self.name, "momentum m |v| (kg m/s)", self.mass * np.linalg.norm(v), "velocity")
+        rotational = 0.5 * w @ self.inertia @ w
+        _within(self.name, "rotational energy 1/2 w.I.w (J)", rotational, "angular_velocity")
+        spin = np.linalg.norm(self.inertia @ w)
+        _within(self.name, "angular momentum |I w| (kg m^2/s)", spin, "angular_velocity")
+        orbital = self.mass * np.linalg.norm(np.cross(self.com, v))
+        _within(
+            self.name, "angular momentum about the origin m |x v| (kg m^2/s)", orbital, "velocity"
+        )
 
     @cached_property
     def positions(self) -> np.ndarray:
@@ -180,6 +223,16 @@ class Scene:
         names = [b.name for b in self.bodies]
         if len(set(names)) != len(names):
             raise ValueError(f"body names must be unique, got {names}")
+        g = np.linalg.norm(self.gravity)
+        for body in self.bodies:
+            weight = body.mass * g
+            _within(body.name, "weight m |g| (N)", weight, "gravity")
+            _within(
+                body.name,
+                "potential energy m |g| |x| (J)",
+                weight * np.linalg.norm(body.com),
+                "gravity",
+            )
 
     @property
     def has_contact(self) -> bool:

@@ -1,7 +1,8 @@
 """Read and write case files: one TOML file holds one `Scene`.
 
 File format. Units are SI. Any number may be written as an integer (1 means 1.0); strings and
-booleans are not numbers, and `nan` / `inf` are rejected everywhere. A vector is an array
+booleans are not numbers, `nan` / `inf` are rejected everywhere, and a number is 0 or of a size
+between 1e-100 and 1e100 (`cases.scene.MAX_MAGNITUDE`). A vector is an array
 [x, y, z] of 3 numbers. A name is a string of letters, digits, `_`, `.` and `-`. Any key not
 listed here is an error. Positions are world coordinates at t = 0.
 

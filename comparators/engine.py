@@ -68,6 +68,11 @@ def check_contract(scene: Scene, engine: str, traj: object) -> None:
         )
 
 
+class EngineFailure(RuntimeError):
+    """An engine raised while running a scene the suite accepted: its own limit or a bug in it
+    or its adapter; the message names engine, case and `failure_reason`."""
+
+
 class UnloadableEngine:
     """A plugin that failed to load: `missing` says which and why; it has nothing to run."""
 

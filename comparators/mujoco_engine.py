@@ -60,6 +60,8 @@ TOLERANCE = 1e-8
 CHUNK_STEPS = 1 << 16
 # MuJoCo's own divergence threshold on qpos, qvel, qacc (mjMAXVAL), and its warnings for it.
 MAX_VALUE = 1e10
+# The smallest mass or principal moment MuJoCo's compiler accepts for a moving body (mjMINVAL).
+MJ_MINVAL = 1e-15
 DIVERGENCE_WARNINGS = {"mjWARN_BADQPOS", "mjWARN_BADQVEL", "mjWARN_BADQACC"}
 # Pipeline stages no scene gives anything to act on (no equality constraints, joint limits,
 # friction loss, springs, dampers, actuators or sensors are modelled), disabled so MuJoCo skips
@@ -447,6 +449,19 @@ class MujocoEngine:
     default_integrator = "RK4"
     orders = ORDERS
     missing = UNAVAILABLE
+
+    def unsupported(self, scene: Scene) -> str | None:
+        """Bodies lighter or with a principal moment smaller than MuJoCo's mjMINVAL: its
+        compiler refuses them ("mass and inertia of moving bodies must be larger than
+        mjMINVAL")."""
+        for body in scene.bodies:
+            smallest = min(body.mass, float(np.linalg.eigvalsh(body.inertia)[0]))
+            if smallest < MJ_MINVAL:
+                return (
+                    f"body {body.name!r} has a mass or principal moment of {smallest:.3g}, "
+                    f"below MuJoCo's mjMINVAL ({MJ_MINVAL:g}), which its compiler refuses"
+                )
+        return None
 
     def run(self, scene: Scene, integrator: str, dt: float, duration: float) -> Trajectory:
         if self.missing:

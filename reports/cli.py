@@ -28,7 +28,13 @@ from cases import CATALOG, InputError, resolve_case, scene_to_toml
 from cases.catalog import CUBE_RAIN_MAX, CUBE_RAIN_PREFIX, CUBE_RAIN_REPRESENTATIVE
 from comparators import ENGINES, get_engine, run
 from comparators.cache import CacheWarning
-from comparators.engine import ContractError, left_out, unsupported
+from comparators.engine import (
+    ContractError,
+    EngineFailure,
+    failure_reason,
+    left_out,
+    unsupported,
+)
 from comparators.engine_output import terminal_stream
 from comparators.interrupt import EXIT_INTERRUPTED, catching_interrupts, check, in_child
 from comparators.limits import check_run, set_limits
@@ -39,7 +45,9 @@ from reports.arguments import build_parser
 from reports.outputs import output_dir, output_file
 
 EXIT_BAD_INPUT = 2
-EXIT_PARITY = 3  # an engine's model or table is not the scene's: a bug in an adapter, not the input
+# an engine's model or table is not the scene's, or it raised on a scene the suite accepted:
+# the engine's or its adapter's fault, not the input's
+EXIT_PARITY = 3
 
 
 # ---- shared by the commands -------------------------------------------------------------------
@@ -144,7 +152,14 @@ def _cmd_run(args, console: Console) -> None:
     dt = scene.dt if args.dt is None else args.dt
     check_run(scene, dt, scene.duration if args.duration is None else args.duration)
     with console.status(f"running {scene.name} on {args.engine}", spinner="dots"):
-        traj = in_child(run, scene, args.engine, args.integrator, args.dt, args.duration)
+        try:
+            traj = in_child(run, scene, args.engine, args.integrator, args.dt, args.duration)
+        except (InputError, ParityError, ContractError):
+            raise
+        except Exception as exc:  # the engine's own failure on an accepted scene: one line
+            raise EngineFailure(
+                f"{args.engine} failed on {scene.name!r}: {failure_reason(exc)}"
+            ) from exc
     summary = summarize(traj, scene)
     if args.out:
         traj.write(args.out)
@@ -485,7 +500,7 @@ def main(argv: list[str] | None = None) -> int:
     except ParityError as exc:
         print(f"rigidbench: parity error: {exc}", file=sys.stderr)
         return EXIT_PARITY
-    except ContractError as exc:
+    except (ContractError, EngineFailure) as exc:
         print(f"rigidbench: engine error: {exc}", file=sys.stderr)
         return EXIT_PARITY
     except KeyboardInterrupt:

@@ -6,6 +6,7 @@ from pathlib import Path
 import pytest
 
 from cases import CATALOG, InputError, load_scene, resolve_case, scene_to_toml
+from cases.toml_io import MAX_TOML_BYTES
 
 # A valid case touching every table, so each invalid case below is a one-spot edit of it.
 # `duration = 10` is an integer on purpose: integers are accepted where floats are expected.
@@ -156,6 +157,34 @@ INVALID = {
         ["planes are given but [contact] is absent"],
     ),
     "malformed TOML": (edit("dt = 0.01", "dt = "), ["malformed TOML: ", "line 3"]),
+    "subnormal mass": (
+        edit("[1.0, 0.0, 1.0, 1.0]", "[1.0, 0.0, 1.0, 1e-310]"),
+        ["key 'bodies[0].particles[1][3]': expected 0 or a number of size between 1e-100 and"],
+    ),
+    "huge radius": (
+        edit("particle_radius = 0.2", "particle_radius = 1e308"),
+        ["key 'bodies[0].particle_radius': expected 0 or a number of size", "got 1e+308"],
+    ),
+    "integer beyond float64": (
+        edit("duration = 10", "duration = 1" + "0" * 400),
+        ["key 'duration': expected a number of magnitude below 1.8e308"],
+    ),
+    "kinetic energy out of range": (
+        edit("velocity = [0.0, 0.0, -2.0]", "velocity = [0.0, 0.0, -1e60]"),
+        ["body 'tri': its kinetic energy", "is 1.5e+120", "change 'velocity'"],
+    ),
+    "rotational energy out of range": (
+        BASE + "angular_velocity = [1e-70, 0.0, 0.0]\n",
+        ["body 'tri': its rotational energy", "change 'angular_velocity'"],
+    ),
+    "inertia out of range": (
+        BASE.replace(", 1.0],", ", 1e-100],"),
+        ["body 'tri': its smallest principal moment", "change 'particles'"],
+    ),
+    "weight out of range": (
+        edit("gravity = [0.0, 0.0, -10.0]", "gravity = [0.0, 0.0, -1e100]"),
+        ["body 'tri': its weight m |g| (N) is 3e+100", "change 'gravity'"],
+    ),
 }
 
 
@@ -172,7 +201,16 @@ UNREADABLE = {
     "missing file": lambda tmp_path: tmp_path / "absent.toml",
     "directory": lambda tmp_path: tmp_path,
     "not UTF-8": lambda tmp_path: write(tmp_path, b'name = "caf\xe9"\n'),
+    "a device": lambda tmp_path: Path("/dev/zero"),
+    "over the size limit": lambda tmp_path: sparse(tmp_path / "big.toml", MAX_TOML_BYTES + 1),
 }
+
+
+def sparse(path: Path, size: int) -> Path:
+    """A file of `size` zero bytes that takes no disk space."""
+    with path.open("wb") as file:
+        file.truncate(size)
+    return path
 
 
 @pytest.mark.parametrize("make_path", UNREADABLE.values(), ids=UNREADABLE.keys())

@@ -3,13 +3,14 @@
 Adapter-specific checks only; the cross-engine gates live in tests/test_engines.py.
 """
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 from scenes import TILTED_CLUSTER, head_on, rotated
 
-from cases import CATALOG, Body, Contact, Scene
+from cases import CATALOG, Body, Contact, InputError, Scene
 from cases.builders import box_lattice
 from cases.exact import exact_states
 from comparators import mujoco_engine as mj
@@ -299,3 +300,18 @@ def test_profiling_timer_is_off_while_stepping_only():
     assert data.timer[step].number == 50 and data.timer[step].duration == 0.0
     mujoco.mj_step(model, data)
     assert data.timer[step].number == 51 and data.timer[step].duration > 0.0
+
+
+def test_bodies_below_mjminval_are_refused_before_mujoco_compiles():
+    """MuJoCo's compiler rejects a moving body lighter than mjMINVAL; the suite refuses the
+    scene first, as input the engine cannot model, instead of failing in the adapter."""
+    cube = CATALOG["free_spin_cube"]
+    body = cube.bodies[0]
+    light = dataclasses.replace(
+        body, particles=tuple((x, y, z, 1e-17) for x, y, z, _ in body.particles)
+    )
+    scene = dataclasses.replace(cube, bodies=(light,))
+    assert "below MuJoCo's mjMINVAL (1e-15)" in mj.MujocoEngine().unsupported(scene)
+    assert mj.MujocoEngine().unsupported(cube) is None
+    with pytest.raises(InputError, match="cannot run 'free_spin_cube': body 'cube' has a mass"):
+        run(scene, "mujoco")
