@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 from cases.errors import InputError
@@ -53,11 +55,22 @@ def current_limits() -> Limits:
     )
 
 
-def set_limits(steps: int | None, recorded: int | None) -> None:
-    """Raise (or lower) the limits for this process and every process it starts."""
+@contextmanager
+def limits_set(steps: int | None, recorded: int | None) -> Iterator[None]:
+    """Within the block, the limits given (None: as they were) hold for this process and every
+    process it starts; afterwards the environment is as it was."""
+    saved = {env: os.environ.get(env) for env in (STEPS_ENV, RECORDED_ENV)}
     for env, value in ((STEPS_ENV, steps), (RECORDED_ENV, recorded)):
         if value is not None:
             os.environ[env] = str(value)
+    try:
+        yield
+    finally:
+        for env, value in saved.items():
+            if value is None:
+                os.environ.pop(env, None)
+            else:
+                os.environ[env] = value
 
 
 def check_run(scene: Scene, dt: float, duration: float) -> None:

@@ -37,7 +37,7 @@ from comparators.engine import (
 )
 from comparators.engine_output import terminal_stream
 from comparators.interrupt import EXIT_INTERRUPTED, catching_interrupts, check, in_child
-from comparators.limits import check_run, set_limits
+from comparators.limits import check_run, limits_set
 from comparators.parity import ParityError
 from comparators.summary import summarize
 from comparators.trajectory import atomic_path
@@ -489,8 +489,8 @@ def main(argv: list[str] | None = None) -> int:
     terminal = terminal_stream()
     console = Console(file=terminal)
     try:
-        set_limits(getattr(args, "max_steps", None), getattr(args, "max_recorded", None))
-        with warnings.catch_warnings(), catching_interrupts():
+        limits = (getattr(args, "max_steps", None), getattr(args, "max_recorded", None))
+        with warnings.catch_warnings(), catching_interrupts(), limits_set(*limits):
             warnings.showwarning = _one_line_cache_warnings(warnings.showwarning)
             status = COMMANDS[args.command](args, console) or 0
             check()  # a Ctrl-C that came inside a compiler callback and could not stop the command
