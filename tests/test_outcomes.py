@@ -192,17 +192,19 @@ def test_energy_lost_with_contact_is_never_dissipated():
 
 
 def test_every_list_of_verdicts_names_them_all():
-    """The gates, the stability map's colours, the findings and the bench's timed verdicts know
-    every verdict of `comparators.verdict`."""
+    """The gates, the stability map's colours, the findings, the report's verdict table and the
+    bench's timed verdicts know every verdict of `comparators.verdict`."""
     from comparators.bench import TIMED_VERDICTS
     from comparators.verdict import VERDICTS
     from gates.spec import VERDICT_NAMES
     from reports.findings import VERDICT_PHRASES
     from reports.plots import VERDICT_COLOURS
+    from reports.texts import verdict_bounds
 
     assert set(VERDICT_NAMES) == {*VERDICTS, "failed"}
     assert set(VERDICT_COLOURS) == {*VERDICTS, "failed", "no run"}
     assert set(VERDICT_PHRASES) == set(VERDICTS) - {"ok"}
+    assert {row[0] for row in verdict_bounds()} == {*VERDICTS, "failed"}
     assert set(TIMED_VERDICTS) == set(VERDICTS) - {"diverged"}
 
 
