@@ -75,7 +75,7 @@ SCALING_COLUMNS = [
     "cost_per_body_step_s",  # wall_s / (steps * n_bodies)
     "setup_s",  # median over repeats: model building and compilation
     "engine_messages",  # lines the engine printed or warned in the first repeat (RunMeta.messages)
-    "verdict",  # "ok", "diverged", "tunnelled", "jitter" (comparators.verdict), "failed: ..."
+    "verdict",  # comparators.verdict.VERDICTS (ok, diverged, dissipated, ...), "failed: ..."
 ]
 PLATEAU_COLUMNS = [
     "engine",

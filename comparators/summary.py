@@ -23,7 +23,7 @@ def summarize(traj: Trajectory, scene: Scene) -> dict[str, float | str | bool]:
     end), largest shape error (deforming engines), rest (where the scene predicts a rest
     height), what the engine said while it ran (`engine_messages`: lines, and the first one
     where there is one) and the verdict (`comparators.verdict.verdict`: ok, diverged,
-    tunnelled or jitter)."""
+    dissipated, tunnelled or jitter)."""
     m = traj.meta
     run = RunData(traj, scene)
     out: dict[str, float | str | bool] = {

@@ -79,7 +79,7 @@ RESULT_COLUMNS = [
     "rest_height_error",
     "engine_messages",  # lines the engine printed or warned during the run (RunMeta.messages)
     "first_engine_message",  # the first of them, else NaN
-    "verdict",  # "ok", "diverged", "tunnelled", "jitter" (comparators.verdict), "failed: ..."
+    "verdict",  # comparators.verdict.VERDICTS (ok, diverged, dissipated, ...), "failed: ..."
     "engine_version",
     "code_version",
     "key",  # results-cache key; indexes SweepResult.trajectories

@@ -99,7 +99,7 @@ OUTCOME_SUFFIXES = ("error", "relative_error")
 OVER_DT_MEASURES = ("order", "largest_stable_dt")
 # Verdicts a `verdict` limit may accept (`comparators.verdict.VERDICTS`, and "failed" for any
 # run that produced no trajectory, whatever its reason).
-VERDICT_NAMES = ("ok", "diverged", "tunnelled", "jitter", "failed")
+VERDICT_NAMES = ("ok", "diverged", "dissipated", "tunnelled", "jitter", "failed")
 LIMIT_KINDS = ("max", "min", "abs_max", "declared_within")
 KINDS_BY_MEASURE = {"order": ("declared_within", "min", "max"), "largest_stable_dt": ("min", "max")}
 DEFAULT_KINDS = ("max", "min", "abs_max")

@@ -15,6 +15,13 @@ One step, in the blog's order (simulate_step!):
    then V + omega x (p - cm).
 
 Friction is not part of the seed and is ignored. The seed's gravity is the scene's.
+
+A numerical failure ends the run, not the process: when a body's inertia tensor cannot be
+inverted (singular, as a thin rod's becomes once its particles collapse onto a line, or not
+finite), `seed_step` reports it, the step is left unfinished, and `run_seed` fills the
+remaining samples with NaN, which the suite's verdict reads as "diverged". A sample whose
+particles are no longer finite is recorded as NaN likewise (the best-fit rotation's SVD raises
+on them). Runs that do not fail take exactly the same arithmetic as before.
 """
 
 import numpy as np
@@ -63,6 +70,8 @@ def _collide_particles(model, pos, vel):
 
 @compiled
 def _update_bodies(model, pos, vel, cm, V, omega, dt):
+    """The rigid-body update of every body; False (state partly updated) when a body's inertia
+    tensor cannot be inverted."""
     for b in range(cm.shape[0]):
         lo, hi = model.body_start[b], model.body_start[b + 1]
         cm_old = cm[b].copy()
@@ -70,7 +79,12 @@ def _update_bodies(model, pos, vel, cm, V, omega, dt):
         for i in range(lo, hi):
             L += model.particle_mass[i] * np.cross(pos[i] - cm_old, vel[i])
         inertia = inertia_tensor(pos[lo:hi] - cm[b], model.particle_mass[lo:hi])
-        omega[b] = np.linalg.inv(inertia) @ L
+        # numba's inv raises LinAlgError on a singular or non-finite matrix: that is the failure
+        try:
+            inverse = np.linalg.inv(inertia)
+        except Exception:
+            return False
+        omega[b] = inverse @ L
         if model.gravity_on:
             V[b] += model.gravity * dt
         cm[b] += V[b] * dt
@@ -79,6 +93,7 @@ def _update_bodies(model, pos, vel, cm, V, omega, dt):
             r += np.cross(omega[b], r) * dt
             pos[i] = cm[b] + r
             vel[i] = V[b] + np.cross(omega[b], r)
+    return True
 
 
 @compiled
@@ -101,12 +116,15 @@ def _apply_walls(model, pos, vel, cm, V, omega):
 
 @compiled
 def seed_step(model, pos, vel, cm, V, omega, dt):
-    """One step of the blog's simulate_step!, in place."""
+    """One step of the blog's simulate_step!, in place; False, the step unfinished, when it
+    failed numerically (a body's inertia could not be inverted)."""
     if model.contact:
         _collide_particles(model, pos, vel)
-    _update_bodies(model, pos, vel, cm, V, omega, dt)
+    if not _update_bodies(model, pos, vel, cm, V, omega, dt):
+        return False
     if model.contact:
         _apply_walls(model, pos, vel, cm, V, omega)
+    return True
 
 
 @compiled
@@ -129,10 +147,15 @@ def _record_particles(model, pos, vel, out, shape_error):
     x, v: mass-weighted means of particle positions and velocities; q: best-fit rotation of the
     particles from their t = 0 offsets; omega: I_rigid(q)^-1 L with L the particles' angular
     momentum about their mean, so the suite's L is exactly the particles' L; shape_error: the
-    largest relative change of an inter-particle distance.
+    largest relative change of an inter-particle distance. A body whose particles' positions or
+    velocities are not all finite is recorded as NaN.
     """
     for b in range(out.shape[0]):
         lo, hi = model.body_start[b], model.body_start[b + 1]
+        if not (np.isfinite(pos[lo:hi]).all() and np.isfinite(vel[lo:hi]).all()):
+            out[b] = np.nan
+            shape_error[b] = np.nan
+            continue
         m = model.particle_mass[lo:hi]
         mass = m.sum()
         x = np.zeros(3)
@@ -164,7 +187,8 @@ def _record_particles(model, pos, vel, out, shape_error):
 def run_seed(model, pos, vel, cm, V, omega, dt, n_steps, stride):
     """Step n_steps times in place; return (steps, samples (S, B, 13), shape_error (S, B),
     particles (S, N, 3)): the particles' world positions at each sample, since the seed's body
-    deforms and its pose alone cannot place them."""
+    deforms and its pose alone cannot place them. After a step that failed (`seed_step`) the
+    run stops: the remaining samples, at the steps they were due, are NaN."""
     nb = cm.shape[0]
     n_samples = n_steps // stride + 1 + (1 if n_steps % stride else 0)
     out = np.empty((n_samples, nb, 13))
@@ -176,7 +200,15 @@ def run_seed(model, pos, vel, cm, V, omega, dt, n_steps, stride):
     steps[0] = 0
     s = 1
     for n in range(1, n_steps + 1):
-        seed_step(model, pos, vel, cm, V, omega, dt)
+        if not seed_step(model, pos, vel, cm, V, omega, dt):
+            for m in range(n, n_steps + 1):
+                if m % stride == 0 or m == n_steps:
+                    out[s] = np.nan
+                    shape[s] = np.nan
+                    particles[s] = np.nan
+                    steps[s] = m
+                    s += 1
+            break
         if n % stride == 0 or n == n_steps:
             _record_particles(model, pos, vel, out[s], shape[s])
             particles[s] = pos

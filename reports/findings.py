@@ -17,6 +17,7 @@ from cases.scene import Scene
 # Verdicts other than "ok" worth a finding, worst first, and how a sentence says each.
 VERDICT_PHRASES = {
     "diverged": "diverged",
+    "dissipated": "dissipated (lost energy without contact)",
     "tunnelled": "tunnelled (a body passed through a plane)",
     "jitter": "jitter (never came to rest)",
 }

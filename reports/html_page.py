@@ -36,7 +36,7 @@ def _verdict_css() -> str:
     """The summary's verdict words in the stability maps' colours (`reports.plots`)."""
     rules = []
     for verdict, colour in VERDICT_COLOURS.items():
-        text = "white" if verdict in ("diverged", "failed") else "#222"
+        text = "white" if verdict in ("diverged", "dissipated", "failed") else "#222"
         name = verdict.replace(" ", "-")
         rules.append(f".verdict-{name} {{ background: {colour}; color: {text}; }}")
     # the physics gates' pass and fail, as ok and diverged

@@ -42,11 +42,12 @@ COST = "cost_s_per_s"  # stepping wall time per simulated second
 PAIR = ["engine", "integrator"]
 ERROR_CMAP = matplotlib.colormaps["viridis"]
 # Verdict colours stay clear of viridis (purple through green to yellow): white, light grey,
-# red, orange, pink, dark grey.
+# red, brown, orange, pink, dark grey.
 VERDICT_COLOURS = {
     "no run": "white",
     "ok": "#e0e0e0",
     "diverged": "#d62728",
+    "dissipated": "#8c564b",
     "tunnelled": "#ff7f0e",
     "jitter": "#e377c2",
     "failed": "#404040",
@@ -244,7 +245,8 @@ def pair_rank(pair: tuple[str, str]) -> tuple:
 
 def plot_stability(runs: pd.DataFrame, path: Path) -> Path:
     """Engine/integrator (rows, in registry order) x dt (s, columns) coloured by verdict
-    (`VERDICT_COLOURS`: ok, diverged, tunnelled, jitter, failed, no run; legend below); valid
+    (`VERDICT_COLOURS`: ok, diverged, dissipated, tunnelled, jitter, failed, no run; legend
+    below); valid
     runs with an error by its magnitude (deg, log colour scale), each cell labelled."""
     pairs = sorted(
         dict.fromkeys(zip(runs["engine"], runs["integrator"], strict=True)), key=pair_rank

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from comparators.run_data import FINAL_FRACTION, FINAL_WINDOW_S
 from comparators.scaling import PLATEAU_FACTOR
-from comparators.verdict import ENERGY_GROWTH_LIMIT, JITTER_SPEED
+from comparators.verdict import ENERGY_GROWTH_LIMIT, ENERGY_LOSS_LIMIT, JITTER_SPEED
 from reports.convergence import ERROR_CEILING_DEG, ERROR_FLOOR_DEG, MIN_FIT_POINTS, POSITION_FLOOR_M
 from reports.tables import EMPTY_CELL
 
@@ -27,8 +27,8 @@ SUMMARY = (
     "case's default dt, and the engine most accurate at equal cost."
 )
 SUMMARY_LEGEND = (
-    "How to read: ok; diverged (a non-finite state or energy blown up); tunnelled (a body "
-    "passed through a plane); jitter (a body that should rest still moves); failed (no run). "
+    "How to read: each verdict (ok, diverged, dissipated, tunnelled, jitter, failed) is "
+    "defined, with its bound, in [Verdicts](#verdicts) below. "
     "Where an engine's integrators differ, each verdict names its integrators. Most accurate at "
     "equal cost: the engine with the smallest orientation error at the most time budgets of "
     "the case's work-precision plot (at how many, of how many); – where fewer than two "
@@ -41,6 +41,46 @@ SUMMARY_OUTCOMES = (
     "not ok (alone where the run diverged or failed). Every quantity, integrator and dt: "
     "Contact validation and each case's Outcomes."
 )
+VERDICTS = (
+    "Every run gets one verdict, read from its states the same way for every engine "
+    "(`comparators/verdict.py`), the first that applies in this order. Energies are relative "
+    "to the energy scale: the initial kinetic energy plus, per body, m |g| times its height "
+    "above the support plane (without one, its ballistic drop over the run)."
+)
+
+
+def verdict_bounds() -> list[tuple[str, str, str]]:
+    """(verdict, what it says, bound) of every verdict in precedence order, then ok and failed,
+    the bounds read from where they are defined."""
+    final = f"the final window: the last {FINAL_FRACTION:.0%} of the run, at most "
+    final += f"{FINAL_WINDOW_S:g} s"
+    return [
+        (
+            "diverged",
+            "a non-finite state, or total energy grown above its initial value",
+            f"energy gain > {ENERGY_GROWTH_LIMIT:g} × energy scale (`ENERGY_GROWTH_LIMIT`)",
+        ),
+        (
+            "dissipated",
+            "a scene without contact (no case has damping) whose total energy fell below its "
+            "initial value: the engine took energy away",
+            f"energy loss > {ENERGY_LOSS_LIMIT:g} × energy scale (`ENERGY_LOSS_LIMIT`)",
+        ),
+        (
+            "tunnelled",
+            "a body passed through a plane",
+            "at some sample a particle's centre behind a plane: penetration > particle radius",
+        ),
+        (
+            "jitter",
+            "a body that should rest (the case states its rest height) still moves",
+            f"some particle faster than {JITTER_SPEED:g} m/s (`JITTER_SPEED`) in {final}",
+        ),
+        ("ok", "none of the above", EMPTY_CELL),
+        ("failed", "no run: the engine raised (its reason is in `results.csv`)", EMPTY_CELL),
+    ]
+
+
 FINDINGS = (
     "Generated from the results at each case's default dt by the rules in "
     "`reports/findings.py` (verdicts other than ok, closed forms missed by more than their "
@@ -91,7 +131,7 @@ MOTION = (
 METRICS = (
     "How to read: drifts are relative maxima over the run (0 is exact conservation), errors "
     "the largest over the run against the reference; steps/s and realtime factor are "
-    "stepping only, higher is faster."
+    "stepping only, higher is faster; the verdict as [Verdicts](#verdicts) defines it."
 )
 SOLVER_NOTE = (
     " Solver columns are what an engine reports of its own contact solver, where it reports "
@@ -128,12 +168,10 @@ WORK_PRECISION = (
     "Pareto front is its best error for a given time."
 )
 STABILITY_MAP = (
-    "How to read: where each engine and integrator breaks as dt grows: red diverged (a "
-    "non-finite state, or the energy grown past "
-    f"{ENERGY_GROWTH_LIMIT:g} times what the scene holds), orange tunnelled (a particle "
-    "centre behind a plane), pink jitter (a body that should rest still moves faster than "
-    f"{JITTER_SPEED:g} m/s at the end), dark grey failed (no run); valid runs are coloured "
-    "by their orientation error, light grey where none is measured."
+    "How to read: where each engine and integrator breaks as dt grows, coloured by verdict "
+    "([Verdicts](#verdicts) has each one's bound): red diverged, brown dissipated, orange "
+    "tunnelled, pink jitter, dark grey failed (no run); valid runs are coloured by their "
+    "orientation error, light grey where none is measured."
 )
 
 # ---- outcomes ------------------------------------------------------------------------------
@@ -175,9 +213,10 @@ CONTACT_OUTCOMES = (
 LARGEST_STABLE = (
     "How to read: per case (rows) and engine/integrator (columns), the largest swept dt (s) "
     "whose run and every run at a smaller dt have the verdict ok, with in parentheses the "
-    "verdict and dt of the first run that is not; ≥ dt: every swept dt is ok, the limit lies "
-    "beyond the sweep; none: even the smallest swept dt fails. A case swept at one dt only "
-    "(the quick report's hard cases) says ok or not at its default dt."
+    "verdict ([Verdicts](#verdicts)) and dt of the first run that is not; ≥ dt: every swept "
+    "dt is ok, the limit lies beyond the sweep; none: even the smallest swept dt fails. A "
+    "case swept at one dt only (the quick report's hard cases) says ok or not at its default "
+    "dt."
 )
 PHYSICS_GATES = (
     "What `rigidbench gate --physics --engine NAME` checks, read from this report's own runs: "

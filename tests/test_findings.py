@@ -12,6 +12,7 @@ import pytest
 
 from cases.catalog import CATALOG
 from comparators.sweep import RESULT_COLUMNS, SweepResult
+from comparators.verdict import ENERGY_LOSS_LIMIT
 from reports.findings import ENERGY_DRIFT_NOTE, RELATIVE_TOLERANCES, findings
 from reports.sections.summary import summary_section
 
@@ -68,7 +69,7 @@ def test_nothing_found_when_every_run_is_right():
     assert findings(*right_sweep()[:2], SCENES, right_sweep()[2]) == []
 
 
-@pytest.mark.parametrize("verdict", ["diverged", "tunnelled", "jitter"])
+@pytest.mark.parametrize("verdict", ["diverged", "dissipated", "tunnelled", "jitter"])
 def test_a_verdict_at_the_default_dt_is_found(verdict):
     results, outcomes, fits = right_sweep()
     results.loc[at(results, "slide", "mujoco", "RK4"), "verdict"] = verdict
@@ -144,7 +145,9 @@ def _result(results: pd.DataFrame, outcomes: pd.DataFrame) -> SweepResult:
 def test_the_summary_shows_verdicts_and_findings():
     results, outcomes, fits = right_sweep()
     text = "\n".join(summary_section(_result(results, outcomes), fits))
-    assert "Nothing to report" in text and "verdict-diverged" not in text
+    table, legend = text.split("### Verdicts")  # the legend names every verdict
+    assert "Nothing to report" in text and "verdict-diverged" not in table
+    assert f"energy loss > {ENERGY_LOSS_LIMIT:g} × energy scale" in legend
     results.loc[at(results, "bounce", "mujoco", "Euler"), "verdict"] = "diverged"
     text = "\n".join(summary_section(_result(results, outcomes), fits))
     row = next(line for line in text.splitlines() if line.startswith("| [bounce](#case-bounce)"))

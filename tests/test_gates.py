@@ -127,8 +127,8 @@ BAD = [
     (GOOD.replace("{ max = 1e-12 }", "{ abs_max = -1 }"), "expected a number >= 0, got -1"),
     (
         GOOD.replace('verdict = "ok"', 'verdict = "fine"'),
-        "key 'limits.verdict': expected a verdict or an array of them (ok, diverged, tunnelled, "
-        "jitter, failed), got 'fine'",
+        "key 'limits.verdict': expected a verdict or an array of them (ok, diverged, "
+        "dissipated, tunnelled, jitter, failed), got 'fine'",
     ),
     (GOOD.replace('verdict = "ok"', "verdict = []"), "key 'limits.verdict': expected a verdict"),
     (

@@ -18,7 +18,14 @@ from cases.exact import exact_states
 from comparators import RunMeta, Trajectory, run
 from comparators.outcomes import OUTCOME_COLUMNS, STAND_DISTANCE, bounces, outcomes
 from comparators.run_data import RunData, particle_positions
-from comparators.verdict import ENERGY_GROWTH_LIMIT, JITTER_SPEED, energy_growth, verdict
+from comparators.verdict import (
+    ENERGY_GROWTH_LIMIT,
+    ENERGY_LOSS_LIMIT,
+    JITTER_SPEED,
+    energy_growth,
+    energy_loss,
+    verdict,
+)
 from rigidmath.quaternion import quat_from_rotvec, quat_to_matrix
 
 G = 10.0
@@ -157,6 +164,48 @@ def test_energy_growth_past_the_limit_is_diverged(factor, expected):
     traj = trajectory(scene, [0.0, 1.0], np.full((2, 3), REST), np.zeros((2, 3)), w=w)
     assert energy_growth(traj, scene) == pytest.approx(factor * ENERGY_GROWTH_LIMIT, rel=1e-12)
     assert verdict(traj, scene) == expected
+
+
+@pytest.mark.parametrize("factor, expected", [(0.99, "ok"), (1.01, "dissipated")])
+def test_energy_lost_without_contact_past_the_limit_is_dissipated(factor, expected):
+    """tumbling_box's exact motion (no contact, no gravity) with its velocities scaled by s from
+    t = 1 s on: its energy, all kinetic and the energy scale, falls by 1 - s^2."""
+    scene = CATALOG["tumbling_box"]
+    t = np.linspace(0.0, 2.0, 21)
+    (state,) = exact_states(scene, t)
+    s = math.sqrt(1 - factor * ENERGY_LOSS_LIMIT)
+    late = (t >= 1.0)[:, None]
+    v, w = (np.where(late, s * state[k], state[k]) for k in ("v", "w"))
+    traj = trajectory(scene, t, state["x"], v, q=state["q"], w=w)
+    assert energy_loss(traj, scene) == pytest.approx(factor * ENERGY_LOSS_LIMIT, rel=1e-9)
+    assert verdict(traj, scene) == expected
+
+
+def test_energy_lost_with_contact_is_never_dissipated():
+    """The cube dropped from 10 m comes to rest: its impacts took 10 / 10.7 of the energy scale
+    (m g times its COM height), past the limit, and a contact may: ok."""
+    scene = floor_scene(bodies=(cube(REST + 10.0),), duration=6.0)
+    t = np.arange(0.0, 6.0, BOUNCE_SAMPLE)
+    traj = trajectory(scene, t, *bouncing(t, 10.0, 0.5))
+    assert energy_loss(traj, scene) > ENERGY_LOSS_LIMIT
+    assert verdict(traj, scene) == "ok"
+
+
+def test_every_list_of_verdicts_names_them_all():
+    """The gates, the stability map's colours, the findings, the report's verdict table and the
+    bench's timed verdicts know every verdict of `comparators.verdict`."""
+    from comparators.bench import TIMED_VERDICTS
+    from comparators.verdict import VERDICTS
+    from gates.spec import VERDICT_NAMES
+    from reports.findings import VERDICT_PHRASES
+    from reports.plots import VERDICT_COLOURS
+    from reports.texts import verdict_bounds
+
+    assert set(VERDICT_NAMES) == {*VERDICTS, "failed"}
+    assert set(VERDICT_COLOURS) == {*VERDICTS, "failed", "no run"}
+    assert set(VERDICT_PHRASES) == set(VERDICTS) - {"ok"}
+    assert {row[0] for row in verdict_bounds()} == {*VERDICTS, "failed"}
+    assert set(TIMED_VERDICTS) == set(VERDICTS) - {"diverged"}
 
 
 def resting_cube_moving(speed=0.0, spin=0.0, depth=0.0, creep_speed=0.0):

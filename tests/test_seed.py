@@ -1,5 +1,7 @@
 """The `seed` integrator is the blog's algorithm: checked against a literal transliteration."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from blog_seed import blog_seed_cube_world, blog_step, blog_step_count
@@ -8,6 +10,7 @@ from cases import CATALOG
 from comparators import run
 from comparators.engine import get_engine
 from comparators.reference import model_from_scene
+from comparators.verdict import verdict
 from reference_sim.model import seed_initial_state
 from reference_sim.seed import seed_step
 
@@ -91,3 +94,34 @@ def test_seed_trajectory_reports_its_deformation():
     np.testing.assert_allclose(shape[-1], expected, rtol=1e-9)
     assert "shape_error" not in run(scene, "reference", "splitting").table
     assert "seed" in get_engine("reference").integrators
+
+
+def spun_rod(speed: float):
+    """thin_rod spun at `speed` rad/s about its catalog axis, sampled every step."""
+    scene = CATALOG["thin_rod"]
+    body = scene.bodies[0]
+    w = np.asarray(body.angular_velocity) * speed / np.linalg.norm(body.angular_velocity)
+    spun = dataclasses.replace(body, angular_velocity=tuple(float(x) for x in w))
+    return dataclasses.replace(scene, bodies=(spun,), sample_interval=None)
+
+
+def test_a_singular_inertia_ends_the_step():
+    """Particles collapsed onto a line have no inertia about it: the step reports the failure
+    instead of raising numpy's LinAlgError, and a sound step still succeeds."""
+    model, (pos, vel, cm, V, omega) = _seed_model(CATALOG["thin_rod"])
+    assert seed_step(model, pos, vel, cm, V, omega, 0.01)
+    pos[:] = cm[0] + np.outer(np.linspace(-2.0, 2.0, len(pos)), [0.0, 0.0, 1.0])
+    assert not seed_step(model, pos, vel, cm, V, omega, 0.01)
+
+
+def test_a_rod_spun_to_overflow_is_diverged():
+    """At 1e4 rad/s the seed's inflation overflows within 80 steps of 0.01 s (it raised a
+    LinAlgError): the run ends, its later samples NaN at their times, and the verdict is
+    diverged."""
+    scene = spun_rod(1e4)
+    traj = run(scene, "reference", "seed", duration=1.0)
+    states = traj.state_by_body[scene.bodies[0].name]
+    finite = np.isfinite(states).all(axis=1)
+    assert len(states) == 101 and finite[0] and not finite[-1]
+    np.testing.assert_allclose(traj.table["t"], np.arange(101) * scene.dt, rtol=1e-12)
+    assert verdict(traj, scene) == "diverged"

@@ -115,16 +115,28 @@ def outcome_table(result: SweepResult) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def verdicts_block() -> str:
+    """Every verdict with what it says and its bound (`texts.verdict_bounds`), each verdict
+    word in its colour."""
+    rows = [
+        {"verdict": verdict_badge(v), "what it says": what, "bound": bound}
+        for v, what, bound in texts.verdict_bounds()
+    ]
+    table = pd.DataFrame(rows)
+    return markdown_table(table, {c: str for c in table.columns})
+
+
 def _finding_line(finding: Finding) -> str:
     links = ", ".join(case_link(case) for case in finding.cases)
     return f"- {finding.text} ({links})"
 
 
 def summary_section(result: SweepResult, fits: pd.DataFrame) -> list[str]:
-    """The summary: verdicts, closed forms, findings."""
+    """The summary: verdicts (and what each means, with its bound), closed forms, findings."""
     verdicts = verdict_table(result)
     as_is = {c: str for c in verdicts.columns}
     lines = section("Summary", texts.SUMMARY, markdown_table(verdicts, as_is), texts.SUMMARY_LEGEND)
+    lines += subsection("Verdicts", texts.VERDICTS, verdicts_block())
     outcomes = outcome_table(result)
     if len(outcomes):
         table = markdown_table(outcomes, {c: str for c in outcomes.columns})
