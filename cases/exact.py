@@ -53,6 +53,11 @@ from rigidmath.quaternion import (
 GAUSS_NODES = 20
 # Panel length as a fraction of that pole distance.
 PANEL_FRACTION = 1.0
+# Panels beyond one per sample interval that the precession quadrature may take: 5,000 times the
+# most a catalog case needs (21: `tumbling_box` at its last sample). A body whose rate has a pole
+# far closer to the real axis than its period (moments equal to 1e-13, say) would need millions:
+# its exact orientation is then NaN, "no exact answer", rather than memory it cannot have.
+MAX_EXTRA_PANELS = 100_000
 # The arithmetic-geometric mean has converged when c_n / a_n is below the double's epsilon.
 _EPS = np.finfo(float).eps
 _MAX_AGM_STEPS = 64
@@ -195,7 +200,9 @@ def _jacobi(ang_mom, omega0, moments, axes, t, nodes, panel_fraction):
 
     # The rate's nearest poles: sn^2(tau) = -r at tau = +-i v + periods, v = F(atan sqrt r | m1).
     pole = _elliptic_f(math.atan(math.sqrt(d23 / d12)), m1, m) / abs(lam)
-    phi = _cumulative_integral(precession_rate, t, pole * panel_fraction, nodes)
+    # The rate repeats with pi1^2, pi2^2: every 2K(m) in tau (infinite on the separatrix).
+    period = 2.0 * _elliptic_f(0.5 * math.pi, m, m1) / abs(lam)
+    phi = _periodic_integral(precession_rate, t, period, pole * panel_fraction, nodes)
     p1, p2, p3, theta, psi = state(t)
     _, _, _, theta0, psi0 = state(np.zeros(1))
     # A(t) = Rz(phi) Rx(theta) Rz(psi) maps principal coordinates to a frame with z along L;
@@ -239,13 +246,28 @@ def _elliptic_f(phi, m, m1):
     return s * float(elliprf(c * c, c * c + m1 * s * s, 1.0))
 
 
+def _periodic_integral(f, t, period, max_panel, nodes):
+    """integral_0^t f for every t, of an f repeating every `period`: whole periods counted,
+    the rest by `_cumulative_integral`, so that the work does not grow with t / period (a spin
+    of 1e30 rad/s over a second would otherwise take 1e28 panels)."""
+    if not math.isfinite(period) or len(t) == 0 or np.max(t) <= period:
+        return _cumulative_integral(f, t, max_panel, nodes)
+    rest = np.fmod(t, period)  # exact, and within [0, period) however many periods t spans
+    whole = np.round((t - rest) / period)
+    parts = _cumulative_integral(f, np.concatenate([[period], rest]), max_panel, nodes)
+    return whole * parts[0] + parts[1:]
+
+
 def _cumulative_integral(f, t, max_panel, nodes):
     """integral_0^t f for every t, by Gauss-Legendre panels no longer than `max_panel`."""
     grid, where = np.unique(np.concatenate([[0.0], t]), return_inverse=True)
     if len(grid) == 1:
         return np.zeros(len(t))
     widths = np.diff(grid)
-    counts = np.maximum(1, np.ceil(widths / max_panel).astype(int))
+    counts = np.ceil(np.maximum(1.0, widths / max_panel))
+    if not counts.sum() - len(widths) <= MAX_EXTRA_PANELS:  # NaN too
+        return np.full(len(t), np.nan)  # no exact answer rather than an inaccurate one
+    counts = counts.astype(int)
     interval = np.repeat(np.arange(len(widths)), counts)
     first = np.repeat(np.cumsum(counts) - counts, counts)
     h = widths[interval] / counts[interval]
