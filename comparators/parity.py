@@ -16,6 +16,11 @@ from comparators.trajectory import RunMeta
 # Everything an engine stores is a double built from the same particles; 1e-9 relative leaves
 # room for an engine's own re-diagonalisation of the inertia (rounding ~1e-15) and nothing more.
 PARITY_RTOL = 1e-9
+# An engine that keeps L or body-frame omega reads omega back through a solve with the inertia,
+# which loses up to cond(I) times the float64 rounding (the bound of a backward-stable solve;
+# measured up to 0.2 of it): added to PARITY_RTOL for the scene's worst-conditioned body, so that
+# a needle or a thin plate with cond(I) near 1e12 is not an adapter error.
+SOLVE_ROUNDING = np.finfo(float).eps
 
 
 class ParityError(RuntimeError):
@@ -53,8 +58,15 @@ def _relative(a, b) -> float:
     return float(np.linalg.norm(a - b) / scale) if scale > 0 else float(np.linalg.norm(a))
 
 
+def parity_tolerance(scene: Scene) -> float:
+    """PARITY_RTOL plus the rounding of a solve with the worst-conditioned body's inertia."""
+    conditioning = max(np.linalg.cond(b.inertia) for b in scene.bodies)
+    return PARITY_RTOL + float(conditioning) * SOLVE_ROUNDING
+
+
 def check_parity(scene: Scene, meta: RunMeta) -> dict[str, float]:
-    """Relative mismatches of mass, inertia, energy, p and L at t = 0; ParityError above tol."""
+    """Relative mismatches of mass, inertia, energy, p and L at t = 0; ParityError above
+    `parity_tolerance`."""
     expected = [
         body_readback(b.mass, b.inertia, b.com, b.velocity, b.angular_velocity)
         for b in scene.bodies
@@ -68,10 +80,11 @@ def check_parity(scene: Scene, meta: RunMeta) -> dict[str, float]:
     got = _energy_and_momenta(scene, actual)
     for k, quantity in enumerate(("energy", "momentum", "angular_momentum")):
         errors[quantity] = _relative(got[k], want[k])
+    tolerance = parity_tolerance(scene)
     for quantity, err in errors.items():
-        if not err <= PARITY_RTOL:
+        if not err <= tolerance:
             raise ParityError(
                 f"engine {meta.engine!r} on {scene.name!r}: {quantity} at t = 0 differs from "
-                f"the scene by {err:.3g} (relative), expected at most {PARITY_RTOL:g}"
+                f"the scene by {err:.3g} (relative), expected at most {tolerance:.3g}"
             )
     return errors
