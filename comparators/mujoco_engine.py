@@ -335,7 +335,9 @@ def step_rollout(model, data, n_steps: int, stride: int) -> tuple[np.ndarray, np
             out[first:last] = states[steps[first:last] - done - 1]
             warned = _warnings(data)
             if warned:
-                if not set(warned) <= DIVERGENCE_WARNINGS:
+                # a divergence brings other warnings along (a huge state makes the inertia
+                # matrix singular, mjWARN_INERTIA): any divergence warning is a divergence
+                if not set(warned) & DIVERGENCE_WARNINGS:
                     raise RuntimeError(f"MuJoCo warned {warned} while stepping: results invalid")
                 _blank_after_divergence(out, steps, states[:, 0], done)
                 break
@@ -451,15 +453,23 @@ class MujocoEngine:
     missing = UNAVAILABLE
 
     def unsupported(self, scene: Scene) -> str | None:
-        """Bodies lighter or with a principal moment smaller than MuJoCo's mjMINVAL: its
-        compiler refuses them ("mass and inertia of moving bodies must be larger than
-        mjMINVAL")."""
+        """Bodies lighter or with a principal moment smaller than MuJoCo's mjMINVAL (its
+        compiler refuses them: "mass and inertia of moving bodies must be larger than
+        mjMINVAL"), or starting with a position or speed above its mjMAXVAL (MuJoCo resets
+        such a state at once as diverged)."""
         for body in scene.bodies:
             smallest = min(body.mass, float(np.linalg.eigvalsh(body.inertia)[0]))
             if smallest < MJ_MINVAL:
                 return (
                     f"body {body.name!r} has a mass or principal moment of {smallest:.3g}, "
                     f"below MuJoCo's mjMINVAL ({MJ_MINVAL:g}), which its compiler refuses"
+                )
+            start = (body.positions, body.velocity, body.angular_velocity)
+            largest = max(float(np.max(np.abs(v))) for v in start)
+            if largest > MAX_VALUE:
+                return (
+                    f"body {body.name!r} starts with a position or speed of {largest:.3g}, above "
+                    f"MuJoCo's mjMAXVAL ({MAX_VALUE:g}), where it resets the state as diverged"
                 )
         return None
 

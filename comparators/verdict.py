@@ -17,7 +17,8 @@ What an engine printed or warned during the run (`RunMeta.messages`) is recorded
 verdict (`engine_messages`), not in it: the verdict reads the states alone, the same way for
 every engine, and a message does not say by itself that the physics is invalid. Where one does,
 the adapter acts on it: MuJoCo's "Nan, Inf or huge value" warnings end its samples in NaN (so
-"diverged"), and its other warnings fail the run (`comparators.mujoco_engine.step_rollout`).
+"diverged", whatever other warnings come with them), and its other warnings alone fail the run
+(`comparators.mujoco_engine.step_rollout`).
 """
 
 from __future__ import annotations
