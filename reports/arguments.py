@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 from pathlib import Path
 
 from comparators.bench import BENCH_DURATION_S, MIN_REPEATS
@@ -17,12 +18,22 @@ from gates import DEFAULT_SLACK
 DEFAULT_OUT = Path("rigidbench-report")
 
 
+_CONTROL_CHARACTERS = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+
+
+def one_line(message: str) -> str:
+    """`message` with its control characters written as escapes (a newline as \\n, a terminal
+    escape as \\x1b), so that a path or argument holding them cannot break the error line in
+    two or rewrite the terminal."""
+    return _CONTROL_CHARACTERS.sub(lambda match: repr(match.group())[1:-1], message)
+
+
 class OneLineParser(argparse.ArgumentParser):
     """A parser whose errors are one line, as every other error of the CLI: what is wrong and
     where the usage is, without argparse's usage lines before it (exit status 2)."""
 
     def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message} (usage: {self.prog} --help)\n")
+        self.exit(2, f"{self.prog}: error: {one_line(message)} (usage: {self.prog} --help)\n")
 
 
 def parse_positive_number(text: str) -> float:

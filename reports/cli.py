@@ -41,7 +41,7 @@ from comparators.limits import check_run, limits_set
 from comparators.parity import ParityError
 from comparators.summary import summarize
 from comparators.trajectory import atomic_path
-from reports.arguments import build_parser
+from reports.arguments import build_parser, one_line
 from reports.outputs import output_dir, output_file
 
 EXIT_BAD_INPUT = 2
@@ -477,7 +477,7 @@ def _one_line_cache_warnings(shown):
 
     def show(message, category, filename, lineno, file=None, line=None):
         if issubclass(category, CacheWarning):
-            print(f"rigidbench: warning: {message}", file=sys.stderr, flush=True)
+            print(f"rigidbench: warning: {one_line(str(message))}", file=sys.stderr, flush=True)
         else:
             shown(message, category, filename, lineno, file, line)
 
@@ -495,13 +495,13 @@ def main(argv: list[str] | None = None) -> int:
             status = COMMANDS[args.command](args, console) or 0
             check()  # a Ctrl-C that came inside a compiler callback and could not stop the command
     except InputError as exc:
-        print(f"rigidbench: error: {exc}", file=sys.stderr)
+        print(f"rigidbench: error: {one_line(str(exc))}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except ParityError as exc:
-        print(f"rigidbench: parity error: {exc}", file=sys.stderr)
+        print(f"rigidbench: parity error: {one_line(str(exc))}", file=sys.stderr)
         return EXIT_PARITY
     except (ContractError, EngineFailure) as exc:
-        print(f"rigidbench: engine error: {exc}", file=sys.stderr)
+        print(f"rigidbench: engine error: {one_line(str(exc))}", file=sys.stderr)
         return EXIT_PARITY
     except KeyboardInterrupt:
         # The pools have stopped their workers on the way out (`comparators.interrupt`) and
