@@ -233,7 +233,9 @@ def _cmd_animate(args, console: Console) -> None:
     dt = scene.dt if args.dt is None else args.dt
     duration = scene.duration if args.duration is None else args.duration
     check_run(scene, dt, duration)
-    cache = ResultsCache(output_dir(args.cache, "--cache") if args.cache else DEFAULT_OUT / "cache")
+    cache = ResultsCache(
+        output_dir(args.cache, "--cache") if args.cache is not None else DEFAULT_OUT / "cache"
+    )
     runs = []
     with console.status(f"running {scene.name}", spinner="dots") as status:
         for engine, integrator in pairs:
@@ -323,7 +325,7 @@ def _cmd_report(args, console: Console) -> None:
     engines = _engines(args.engines)
     executor = _executor(args)
     out = output_dir(args.out, "--out")
-    cache_dir = output_dir(args.cache, "--cache") if args.cache else out / "cache"
+    cache_dir = output_dir(args.cache, "--cache") if args.cache is not None else out / "cache"
     specs = plan(scenes, engines, quick=args.quick)  # a run over the limits: before compiling
     cache = ResultsCache(cache_dir)
     with console.status("compiling the reference simulator", spinner="dots"):
@@ -419,7 +421,9 @@ def _check_gates(args, console: Console, gates: list, junit: Path | None, start:
     from reports.arguments import DEFAULT_OUT
 
     plan_checks(gates, args.engine)  # a missing engine or integrator: before any run
-    cache = ResultsCache(output_dir(args.cache, "--cache") if args.cache else DEFAULT_OUT / "cache")
+    cache = ResultsCache(
+        output_dir(args.cache, "--cache") if args.cache is not None else DEFAULT_OUT / "cache"
+    )
     executor = LocalExecutor(args.jobs)
     checks = evaluate(gates, cache, args.engine, executor=executor, console=console)
     console.print(_gate_console_table(checks))
@@ -451,7 +455,9 @@ def _record_gates(args, console: Console, start: float) -> int:
     if get_engine(args.engine).missing:
         raise InputError(f"engine {args.engine!r} is unavailable: {ENGINES[args.engine].missing}")
     scenes = list(zip(args.cases, _scenes(args.cases), strict=True))
-    cache = ResultsCache(output_dir(args.cache, "--cache") if args.cache else DEFAULT_OUT / "cache")
+    cache = ResultsCache(
+        output_dir(args.cache, "--cache") if args.cache is not None else DEFAULT_OUT / "cache"
+    )
     executor = LocalExecutor(args.jobs)
     count = record(scenes, args.engine, out, cache, args.slack, executor=executor, console=console)
     console.print(f"gate: recorded {count} gates in {out.as_posix()}", markup=False, soft_wrap=True)
