@@ -289,6 +289,11 @@ def _executor(args):
     """The sweep's executor: local worker processes, or a Dask scheduler."""
     from comparators.sweep import DaskExecutor, LocalExecutor
 
+    if args.executor != "dask" and args.scheduler is not None:
+        raise InputError(
+            f"--scheduler {args.scheduler!r}: only with --executor dask: expected --executor dask "
+            "or no --scheduler"
+        )
     if args.executor == "dask":
         if not args.scheduler:
             raise InputError("--executor dask: expected --scheduler ADDRESS (e.g. tcp://host:8786)")
