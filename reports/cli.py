@@ -413,6 +413,8 @@ def _cmd_gate(args, console: Console) -> int:
     if args.cases:
         raise InputError("--cases: only with --record OUT.toml (the gates name their cases)")
     junit = output_file(args.junit, "--junit", (".xml",))
+    if args.engine is not None:
+        get_engine(args.engine)  # an unknown --engine is the option's fault, not the files'
     gates = load_gates(_gate_paths(args))
     return _check_gates(args, console, gates, junit, start)
 
