@@ -41,6 +41,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -262,6 +263,10 @@ def _show(value: Any) -> str:
 def _number(where: _Where, key: str, value: Any, positive: bool = False) -> float:
     """A finite number (an int is one, a bool is not); > 0 when `positive`."""
     ok = isinstance(value, int | float) and not isinstance(value, bool)
+    if ok and isinstance(value, int) and abs(value) > sys.float_info.max:
+        raise where.error(
+            key, f"expected a number of magnitude below 1.8e308 (float64), got {_show(value)}"
+        )
     if not ok or not math.isfinite(value):
         raise where.error(key, f"expected a finite number, got {_show(value)}")
     if positive and value <= 0:
