@@ -193,7 +193,8 @@ def load_gate_file(path: Path) -> list[Gate]:
         raise InputError(f"{path}: unknown key '{extra[0]}' (expected one of: gates)")
     tables = data.get("gates")
     if not isinstance(tables, list) or not tables:
-        raise InputError(f"{path}: key 'gates': expected an array of tables [[gates]], got none")
+        got = "none" if tables is None else "an empty array" if tables == [] else _show(tables)
+        raise InputError(f"{path}: key 'gates': expected an array of tables [[gates]], got {got}")
     gates, names = [], set()
     for index, table in enumerate(tables):
         gate = _read_gate(path, index, table)
@@ -255,7 +256,7 @@ def _show(value: Any) -> str:
     if isinstance(value, str):
         return repr(value)
     if isinstance(value, dict):
-        return "a table"
+        return "a table" if value else "an empty table"
     text = str(value)
     return text if len(text) <= 60 else text[:57] + "..."
 
