@@ -218,7 +218,7 @@ def resolve_case(name_or_path: str) -> Scene:
         scene = family_scene(name_or_path)
         if scene is not None:
             return scene
-    if looks_like_a_file or path.exists():
+    if looks_like_a_file or (name_or_path and path.exists()):
         return load_scene(path)
     raise InputError(
         f"unknown case {name_or_path!r}: expected a catalog name ({', '.join(CATALOG)}), "
