@@ -183,6 +183,8 @@ def read_toml(path: Path) -> dict[str, Any]:
         raise InputError(
             f"{path}: cannot read file: not UTF-8 text ({err.reason} at byte {err.start})"
         ) from err
+    # A byte order mark (Windows editors write one) is no part of TOML: read what follows it.
+    text = text.removeprefix("\ufeff")
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
