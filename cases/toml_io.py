@@ -149,6 +149,11 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
     """
     path = Path(path)
     data = read_toml(path)
+    if "gates" in data:
+        raise InputError(
+            f"{path}: a gate file (it has [[gates]]): expected a case file; gate files run with "
+            "`rigidbench gate`"
+        )
     try:
         return Scene(**data)
     except ValidationError as err:
