@@ -38,6 +38,8 @@ def output_file(text: str | None, option: str, suffixes: tuple[str, ...]) -> Pat
         )
     if out.is_dir():
         raise InputError(f"{option} {text!r}: is a directory: expected a file name")
+    if out.parent.exists() and not out.parent.is_dir():
+        raise InputError(f"{option} {text!r}: {str(out.parent)!r} is a file: expected a directory")
     if not out.parent.is_dir():
         raise InputError(f"{option} {text!r}: directory {str(out.parent)!r} missing")
     _writable(out.parent, option, text)
@@ -55,6 +57,8 @@ def output_dir(text: str, option: str) -> Path:
     if out.is_dir():
         _writable(out, option, text)
         return out
+    if out.parent.exists() and not out.parent.is_dir():
+        raise InputError(f"{option} {text!r}: {str(out.parent)!r} is a file: expected a directory")
     if not out.parent.is_dir():
         raise InputError(f"{option} {text!r}: directory {str(out.parent)!r} missing")
     _writable(out.parent, option, text)
