@@ -62,6 +62,22 @@ def parse_count(text: str) -> int:
     return _parse_whole(text, 1)
 
 
+# Workers per CPU that `--jobs` may ask for: the runs are CPU-bound, so more gain nothing, and
+# the fork pool starts every worker at once, so an unbounded count forks without end.
+MAX_JOBS_PER_CPU = 4
+
+
+def parse_jobs(text: str) -> int:
+    """argparse type: a whole number of worker processes, from 1 to MAX_JOBS_PER_CPU per CPU."""
+    value = _parse_whole(text, 1)
+    most = MAX_JOBS_PER_CPU * (os.cpu_count() or 1)
+    if value > most:
+        raise argparse.ArgumentTypeError(
+            f"expected at most {most} ({MAX_JOBS_PER_CPU} per CPU of this machine), got {text!r}"
+        )
+    return value
+
+
 def parse_repeats(text: str) -> int:
     """argparse type: a whole number >= MIN_REPEATS (a median with min and max)."""
     return _parse_whole(text, MIN_REPEATS)
@@ -133,7 +149,7 @@ def _add_report(sub) -> None:
     rep.add_argument("--executor", choices=("local", "dask"), default="local")
     rep.add_argument("--scheduler", help="Dask scheduler address, with --executor dask")
     rep.add_argument(
-        "--jobs", type=parse_count, default=os.cpu_count() or 1, help="local worker processes"
+        "--jobs", type=parse_jobs, default=os.cpu_count() or 1, help="local worker processes"
     )
     _add_limits(rep)
 
@@ -232,7 +248,7 @@ def _add_gate(sub) -> None:
         "--cache", help=f"results cache directory (default: ./{DEFAULT_OUT}/cache, the report's)"
     )
     gate.add_argument(
-        "--jobs", type=parse_count, default=os.cpu_count() or 1, help="local worker processes"
+        "--jobs", type=parse_jobs, default=os.cpu_count() or 1, help="local worker processes"
     )
     _add_limits(gate)
 
