@@ -103,14 +103,25 @@ def check_run(scene: Scene, dt: float, duration: float) -> None:
         )
 
 
+def whole_number(text: str) -> int | None:
+    """`text` as a whole number, in digits or in float notation (1e9, as the defaults are
+    shown); None when it is not one."""
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        value = float(text)
+    except ValueError:
+        return None
+    return int(value) if math.isfinite(value) and value.is_integer() else None
+
+
 def _from_env(env: str, option: str, default: int) -> int:
     text = os.environ.get(env)
     if text is None:
         return default
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
+    value = whole_number(text)
+    if value is None or value < 1:
         raise InputError(f"{option} ({env}): expected a whole number >= 1, got {text!r}")
     return value

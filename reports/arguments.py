@@ -10,7 +10,7 @@ import re
 from pathlib import Path
 
 from comparators.bench import BENCH_DURATION_S, MIN_REPEATS
-from comparators.limits import MAX_STEPS
+from comparators.limits import MAX_STEPS, whole_number
 from gates import DEFAULT_SLACK
 
 # The report's folder, in the directory the command runs in: all a report writes (the results
@@ -48,10 +48,9 @@ def parse_positive_number(text: str) -> float:
 
 
 def _parse_whole(text: str, least: int) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    value = whole_number(text)
+    if value is None:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}")
     if value < least:
         raise argparse.ArgumentTypeError(f"expected a number >= {least}, got {text!r}")
     return value
