@@ -95,11 +95,16 @@ def check_run(scene: Scene, dt: float, duration: float) -> None:
     particles = sum(len(b.particles) for b in scene.bodies)
     recorded = samples * particles
     if recorded > limits.recorded:
+        source = (
+            f"a quarter of this machine's memory at {BYTES_PER_RECORDED} B each"
+            if os.environ.get(RECORDED_ENV) is None
+            else f"set by --max-recorded or {RECORDED_ENV}"
+        )
         raise InputError(
             f"{where} records {samples:.3g} samples x {particles} particles = {recorded:.3g} "
-            f"positions, over the limit of {limits.recorded:.3g} (a quarter of this machine's "
-            f"memory at {BYTES_PER_RECORDED} B each): expected a sample_interval, a shorter "
-            f"duration, or raise it with --max-recorded (or {RECORDED_ENV})"
+            f"positions, over the limit of {limits.recorded:.3g} ({source}): expected a "
+            f"sample_interval, a shorter duration, or raise it with --max-recorded "
+            f"(or {RECORDED_ENV})"
         )
 
 
