@@ -9,6 +9,7 @@ import os
 import re
 from pathlib import Path
 
+from cases.scene import MAX_MAGNITUDE, MIN_MAGNITUDE
 from comparators.bench import BENCH_DURATION_S, MIN_REPEATS
 from comparators.limits import MAX_STEPS, whole_number
 from gates import DEFAULT_SLACK
@@ -44,6 +45,18 @@ def parse_positive_number(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
     if not math.isfinite(value) or value <= 0:
         raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return value
+
+
+def parse_time(text: str) -> float:
+    """argparse type of --dt and --duration: a finite number > 0 of a size a case file may hold
+    (`cases.scene.MIN_MAGNITUDE` to `MAX_MAGNITUDE`), since it stands for the case's own."""
+    value = parse_positive_number(text)
+    if not MIN_MAGNITUDE <= value <= MAX_MAGNITUDE:
+        raise argparse.ArgumentTypeError(
+            f"expected a number of size between {MIN_MAGNITUDE:g} and {MAX_MAGNITUDE:g}, as "
+            f"every number of a case, got {text!r}"
+        )
     return value
 
 
@@ -109,11 +122,9 @@ def _add_run(sub) -> None:
     run_p.add_argument("case", help="catalog name or path to a .toml case file")
     run_p.add_argument("--engine", default="reference", help="engine name (default: reference)")
     run_p.add_argument("--integrator", help="integrator name (default: the engine's default)")
+    run_p.add_argument("--dt", type=parse_time, help="time step in s (default: the case's)")
     run_p.add_argument(
-        "--dt", type=parse_positive_number, help="time step in s (default: the case's)"
-    )
-    run_p.add_argument(
-        "--duration", type=parse_positive_number, help="simulated time in s (default: the case's)"
+        "--duration", type=parse_time, help="simulated time in s (default: the case's)"
     )
     run_p.add_argument("--out", help="write the trajectory table to FILE.csv or FILE.parquet")
     _add_limits(run_p)
@@ -164,11 +175,9 @@ def _add_animate(sub) -> None:
         nargs="+",
         help="integrator name(s), each run on every engine (default: each engine's default)",
     )
+    anim.add_argument("--dt", type=parse_time, help="time step in s (default: the case's)")
     anim.add_argument(
-        "--dt", type=parse_positive_number, help="time step in s (default: the case's)"
-    )
-    anim.add_argument(
-        "--duration", type=parse_positive_number, help="simulated time in s (default: the case's)"
+        "--duration", type=parse_time, help="simulated time in s (default: the case's)"
     )
     anim.add_argument("--out", required=True, help="the animation, FILE.gif")
     anim.add_argument(
@@ -182,13 +191,13 @@ def _add_bench(sub) -> None:
     _add_selection(ben)
     ben.add_argument(
         "--dt",
-        type=parse_positive_number,
+        type=parse_time,
         nargs="+",
         help="time step(s) in s (default: each case's own)",
     )
     ben.add_argument(
         "--duration",
-        type=parse_positive_number,
+        type=parse_time,
         help=f"simulated time per run in s (default: the case's, at most {BENCH_DURATION_S:g})",
     )
     ben.add_argument(
