@@ -61,8 +61,18 @@ def _scenes(names: list[str] | None) -> list:
     return scenes
 
 
+def _distinct(values: list | None, option: str, what: str) -> None:
+    """InputError when `option` names a value twice (it would run, and show, twice)."""
+    seen = set()
+    for value in values or []:
+        if value in seen:
+            raise InputError(f"{option}: {value!r} given twice: expected distinct {what}")
+        seen.add(value)
+
+
 def _engines(names: list[str] | None) -> list[str]:
-    """The named engines (checked), or every available one."""
+    """The named engines (checked, distinct), or every available one."""
+    _distinct(names, "--engines", "engines")
     engines = names or [name for name, engine in ENGINES.items() if not engine.missing]
     for name in engines:
         get_engine(name)
@@ -178,6 +188,7 @@ def _animated_runs(args, scene, console: Console) -> list[tuple[str, str]]:
     available one that models the case by default, leaving the others out with a line saying
     why) with each of --integrator, or its default."""
     engines = _engines(args.engines)
+    _distinct(args.integrator, "--integrator", "integrators")
     if not args.engines:
         _print_left_out(console, [scene], engines)
         engines = [name for name in engines if not unsupported(ENGINES[name], scene)]
@@ -269,6 +280,7 @@ def _cmd_bench(args, console: Console) -> None:
     out = output_file(args.out, "--out", (".csv",))
     scenes = _scenes(args.cases)
     engines = _engines(args.engines)
+    _distinct(args.dt, "--dt", "time steps")
     plan_bench(scenes, engines, args.dt, args.duration)  # bad dt or duration: before any run
     _print_left_out(console, scenes, engines)
     start = time.perf_counter()
