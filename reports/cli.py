@@ -281,7 +281,7 @@ def _cmd_bench(args, console: Console) -> None:
     scenes = _scenes(args.cases)
     engines = _engines(args.engines)
     _distinct(args.dt, "--dt", "time steps")
-    plan_bench(scenes, engines, args.dt, args.duration)  # bad dt or duration: before any run
+    plan_bench(scenes, engines, args.dt, args.duration, args.repeats)  # bad dt, duration, repeats
     _print_left_out(console, scenes, engines)
     start = time.perf_counter()
     with console.status("compiling the reference simulator", spinner="dots"):
