@@ -69,6 +69,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import stat
 import tomllib
 from dataclasses import MISSING, fields, is_dataclass
@@ -260,14 +261,21 @@ def _describe(error: dict[str, Any]) -> str:
 
 
 def _key_path(loc: tuple[str | int, ...]) -> str:
-    """('bodies', 0, 'particles', 1) -> 'bodies[0].particles[1]'."""
+    """('bodies', 0, 'particles', 1) -> 'bodies[0].particles[1]'. A key that is not a bare TOML
+    key is quoted as TOML quotes it, so that a key named "contact.friction" is not taken for the
+    friction of [contact]."""
     path = ""
     for part in loc:
         if isinstance(part, int):
             path += f"[{part}]"
         else:
+            if not _BARE_KEY.fullmatch(part):
+                part = json.dumps(part, ensure_ascii=False)
             path += f".{part}" if path else part
     return path
+
+
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
 
 
 def _show(value: Any) -> str:
