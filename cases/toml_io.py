@@ -69,6 +69,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import stat
 import tomllib
 from dataclasses import MISSING, fields, is_dataclass
@@ -149,6 +150,11 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
     """
     path = Path(path)
     data = read_toml(path)
+    if "gates" in data:
+        raise InputError(
+            f"{path}: a gate file (it has [[gates]]): expected a case file; gate files run with "
+            "`rigidbench gate`"
+        )
     try:
         return Scene(**data)
     except ValidationError as err:
@@ -183,6 +189,8 @@ def read_toml(path: Path) -> dict[str, Any]:
         raise InputError(
             f"{path}: cannot read file: not UTF-8 text ({err.reason} at byte {err.start})"
         ) from err
+    # A byte order mark (Windows editors write one) is no part of TOML: read what follows it.
+    text = text.removeprefix("\ufeff")
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
@@ -218,7 +226,7 @@ def resolve_case(name_or_path: str) -> Scene:
         scene = family_scene(name_or_path)
         if scene is not None:
             return scene
-    if looks_like_a_file or path.exists():
+    if looks_like_a_file or (name_or_path and path.exists()):
         return load_scene(path)
     raise InputError(
         f"unknown case {name_or_path!r}: expected a catalog name ({', '.join(CATALOG)}), "
@@ -253,14 +261,21 @@ def _describe(error: dict[str, Any]) -> str:
 
 
 def _key_path(loc: tuple[str | int, ...]) -> str:
-    """('bodies', 0, 'particles', 1) -> 'bodies[0].particles[1]'."""
+    """('bodies', 0, 'particles', 1) -> 'bodies[0].particles[1]'. A key that is not a bare TOML
+    key is quoted as TOML quotes it, so that a key named "contact.friction" is not taken for the
+    friction of [contact]."""
     path = ""
     for part in loc:
         if isinstance(part, int):
             path += f"[{part}]"
         else:
+            if not _BARE_KEY.fullmatch(part):
+                part = json.dumps(part, ensure_ascii=False)
             path += f".{part}" if path else part
     return path
+
+
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
 
 
 def _show(value: Any) -> str:

@@ -28,7 +28,7 @@ from cases.errors import InputError
 from cases.scene import Scene
 from comparators.engine import ENGINES, get_engine, unsupported
 from comparators.engine_output import message_count
-from comparators.limits import check_run
+from comparators.limits import STEPS_ENV, check_run, current_limits
 from comparators.timing import BENCH_REPEATS, MIN_REPEATS, attempt_run, interleaved, spread
 from comparators.verdict import verdict
 
@@ -82,10 +82,12 @@ def plan_bench(
     engines: list[str],
     dts: Iterable[float] | None = None,
     duration: float | None = None,
+    repeats: int = BENCH_REPEATS,
 ) -> list[list[BenchRun]]:
     """The runs, one block per case and dt, each listing every engine/integrator in registry
     order, leaving out engines that do not model the scene. `dts` None: each scene's own dt.
-    Bad names, and a dt or duration `comparators.limits.check_run` refuses, raise InputError."""
+    Bad names, and a dt or duration `comparators.limits.check_run` refuses, raise InputError;
+    so does a run whose warm-up and `repeats` together take more steps than the step limit."""
     for name in engines:
         get_engine(name)
     dts = None if dts is None else list(dts)
@@ -94,6 +96,7 @@ def plan_bench(
         length = bench_duration(scene, duration)
         for dt in dts or [scene.dt]:
             check_run(scene, dt, length)
+            _check_repeats(scene, dt, length, repeats)
             block = [
                 BenchRun(scene, name, integrator, float(dt), float(length))
                 for name in engines
@@ -103,6 +106,18 @@ def plan_bench(
             if block:
                 blocks.append(block)
     return blocks
+
+
+def _check_repeats(scene: Scene, dt: float, length: float, repeats: int) -> None:
+    """InputError when one run, warm-up and `repeats` timed, steps more than the step limit."""
+    limit = current_limits().steps
+    steps = (1 + repeats) * (length / dt)
+    if steps > limit + 0.5:
+        raise InputError(
+            f"{scene.name!r} with dt {dt:g} for {length:g} s, warmed up and repeated {repeats} "
+            f"times, takes {steps:.3g} steps, over the limit of {limit:.3g}: expected fewer "
+            f"--repeats, or raise it with --max-steps (or {STEPS_ENV})"
+        )
 
 
 def _attempt(spec: BenchRun):
@@ -154,7 +169,7 @@ def bench(
     """
     if repeats < MIN_REPEATS:
         raise InputError(f"repeats: expected at least {MIN_REPEATS}, got {repeats}")
-    blocks = plan_bench(scenes, engines, dts, duration)
+    blocks = plan_bench(scenes, engines, dts, duration, repeats)
     rows = []
     total = sum(len(block) for block in blocks) * (1 + repeats)
     columns = [

@@ -95,22 +95,38 @@ def check_run(scene: Scene, dt: float, duration: float) -> None:
     particles = sum(len(b.particles) for b in scene.bodies)
     recorded = samples * particles
     if recorded > limits.recorded:
+        source = (
+            f"a quarter of this machine's memory at {BYTES_PER_RECORDED} B each"
+            if os.environ.get(RECORDED_ENV) is None
+            else f"set by --max-recorded or {RECORDED_ENV}"
+        )
         raise InputError(
             f"{where} records {samples:.3g} samples x {particles} particles = {recorded:.3g} "
-            f"positions, over the limit of {limits.recorded:.3g} (a quarter of this machine's "
-            f"memory at {BYTES_PER_RECORDED} B each): expected a sample_interval, a shorter "
-            f"duration, or raise it with --max-recorded (or {RECORDED_ENV})"
+            f"positions, over the limit of {limits.recorded:.3g} ({source}): expected a "
+            f"sample_interval, a shorter duration, or raise it with --max-recorded "
+            f"(or {RECORDED_ENV})"
         )
+
+
+def whole_number(text: str) -> int | None:
+    """`text` as a whole number, in digits or in float notation (1e9, as the defaults are
+    shown); None when it is not one."""
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        value = float(text)
+    except ValueError:
+        return None
+    return int(value) if math.isfinite(value) and value.is_integer() else None
 
 
 def _from_env(env: str, option: str, default: int) -> int:
     text = os.environ.get(env)
     if text is None:
         return default
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
+    value = whole_number(text)
+    if value is None or value < 1:
         raise InputError(f"{option} ({env}): expected a whole number >= 1, got {text!r}")
     return value

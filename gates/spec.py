@@ -41,6 +41,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -192,7 +193,8 @@ def load_gate_file(path: Path) -> list[Gate]:
         raise InputError(f"{path}: unknown key '{extra[0]}' (expected one of: gates)")
     tables = data.get("gates")
     if not isinstance(tables, list) or not tables:
-        raise InputError(f"{path}: key 'gates': expected an array of tables [[gates]], got none")
+        got = "none" if tables is None else "an empty array" if tables == [] else _show(tables)
+        raise InputError(f"{path}: key 'gates': expected an array of tables [[gates]], got {got}")
     gates, names = [], set()
     for index, table in enumerate(tables):
         gate = _read_gate(path, index, table)
@@ -254,7 +256,7 @@ def _show(value: Any) -> str:
     if isinstance(value, str):
         return repr(value)
     if isinstance(value, dict):
-        return "a table"
+        return "a table" if value else "an empty table"
     text = str(value)
     return text if len(text) <= 60 else text[:57] + "..."
 
@@ -262,6 +264,10 @@ def _show(value: Any) -> str:
 def _number(where: _Where, key: str, value: Any, positive: bool = False) -> float:
     """A finite number (an int is one, a bool is not); > 0 when `positive`."""
     ok = isinstance(value, int | float) and not isinstance(value, bool)
+    if ok and isinstance(value, int) and abs(value) > sys.float_info.max:
+        raise where.error(
+            key, f"expected a number of magnitude below 1.8e308 (float64), got {_show(value)}"
+        )
     if not ok or not math.isfinite(value):
         raise where.error(key, f"expected a finite number, got {_show(value)}")
     if positive and value <= 0:

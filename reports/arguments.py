@@ -6,10 +6,12 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 from pathlib import Path
 
+from cases.scene import MAX_MAGNITUDE, MIN_MAGNITUDE
 from comparators.bench import BENCH_DURATION_S, MIN_REPEATS
-from comparators.limits import MAX_STEPS
+from comparators.limits import MAX_STEPS, whole_number
 from gates import DEFAULT_SLACK
 
 # The report's folder, in the directory the command runs in: all a report writes (the results
@@ -17,12 +19,22 @@ from gates import DEFAULT_SLACK
 DEFAULT_OUT = Path("rigidbench-report")
 
 
+_CONTROL_CHARACTERS = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+
+
+def one_line(message: str) -> str:
+    """`message` with its control characters written as escapes (a newline as \\n, a terminal
+    escape as \\x1b), so that a path or argument holding them cannot break the error line in
+    two or rewrite the terminal."""
+    return _CONTROL_CHARACTERS.sub(lambda match: repr(match.group())[1:-1], message)
+
+
 class OneLineParser(argparse.ArgumentParser):
     """A parser whose errors are one line, as every other error of the CLI: what is wrong and
     where the usage is, without argparse's usage lines before it (exit status 2)."""
 
     def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message} (usage: {self.prog} --help)\n")
+        self.exit(2, f"{self.prog}: error: {one_line(message)} (usage: {self.prog} --help)\n")
 
 
 def parse_positive_number(text: str) -> float:
@@ -36,11 +48,22 @@ def parse_positive_number(text: str) -> float:
     return value
 
 
+def parse_time(text: str) -> float:
+    """argparse type of --dt and --duration: a finite number > 0 of a size a case file may hold
+    (`cases.scene.MIN_MAGNITUDE` to `MAX_MAGNITUDE`), since it stands for the case's own."""
+    value = parse_positive_number(text)
+    if not MIN_MAGNITUDE <= value <= MAX_MAGNITUDE:
+        raise argparse.ArgumentTypeError(
+            f"expected a number of size between {MIN_MAGNITUDE:g} and {MAX_MAGNITUDE:g}, as "
+            f"every number of a case, got {text!r}"
+        )
+    return value
+
+
 def _parse_whole(text: str, least: int) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    value = whole_number(text)
+    if value is None:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}")
     if value < least:
         raise argparse.ArgumentTypeError(f"expected a number >= {least}, got {text!r}")
     return value
@@ -49,6 +72,22 @@ def _parse_whole(text: str, least: int) -> int:
 def parse_count(text: str) -> int:
     """argparse type: a whole number >= 1."""
     return _parse_whole(text, 1)
+
+
+# Workers per CPU that `--jobs` may ask for: the runs are CPU-bound, so more gain nothing, and
+# the fork pool starts every worker at once, so an unbounded count forks without end.
+MAX_JOBS_PER_CPU = 4
+
+
+def parse_jobs(text: str) -> int:
+    """argparse type: a whole number of worker processes, from 1 to MAX_JOBS_PER_CPU per CPU."""
+    value = _parse_whole(text, 1)
+    most = MAX_JOBS_PER_CPU * (os.cpu_count() or 1)
+    if value > most:
+        raise argparse.ArgumentTypeError(
+            f"expected at most {most} ({MAX_JOBS_PER_CPU} per CPU of this machine), got {text!r}"
+        )
+    return value
 
 
 def parse_repeats(text: str) -> int:
@@ -83,11 +122,9 @@ def _add_run(sub) -> None:
     run_p.add_argument("case", help="catalog name or path to a .toml case file")
     run_p.add_argument("--engine", default="reference", help="engine name (default: reference)")
     run_p.add_argument("--integrator", help="integrator name (default: the engine's default)")
+    run_p.add_argument("--dt", type=parse_time, help="time step in s (default: the case's)")
     run_p.add_argument(
-        "--dt", type=parse_positive_number, help="time step in s (default: the case's)"
-    )
-    run_p.add_argument(
-        "--duration", type=parse_positive_number, help="simulated time in s (default: the case's)"
+        "--duration", type=parse_time, help="simulated time in s (default: the case's)"
     )
     run_p.add_argument("--out", help="write the trajectory table to FILE.csv or FILE.parquet")
     _add_limits(run_p)
@@ -122,7 +159,7 @@ def _add_report(sub) -> None:
     rep.add_argument("--executor", choices=("local", "dask"), default="local")
     rep.add_argument("--scheduler", help="Dask scheduler address, with --executor dask")
     rep.add_argument(
-        "--jobs", type=parse_count, default=os.cpu_count() or 1, help="local worker processes"
+        "--jobs", type=parse_jobs, default=os.cpu_count() or 1, help="local worker processes"
     )
     _add_limits(rep)
 
@@ -138,11 +175,9 @@ def _add_animate(sub) -> None:
         nargs="+",
         help="integrator name(s), each run on every engine (default: each engine's default)",
     )
+    anim.add_argument("--dt", type=parse_time, help="time step in s (default: the case's)")
     anim.add_argument(
-        "--dt", type=parse_positive_number, help="time step in s (default: the case's)"
-    )
-    anim.add_argument(
-        "--duration", type=parse_positive_number, help="simulated time in s (default: the case's)"
+        "--duration", type=parse_time, help="simulated time in s (default: the case's)"
     )
     anim.add_argument("--out", required=True, help="the animation, FILE.gif")
     anim.add_argument(
@@ -156,13 +191,13 @@ def _add_bench(sub) -> None:
     _add_selection(ben)
     ben.add_argument(
         "--dt",
-        type=parse_positive_number,
+        type=parse_time,
         nargs="+",
         help="time step(s) in s (default: each case's own)",
     )
     ben.add_argument(
         "--duration",
-        type=parse_positive_number,
+        type=parse_time,
         help=f"simulated time per run in s (default: the case's, at most {BENCH_DURATION_S:g})",
     )
     ben.add_argument(
@@ -221,7 +256,7 @@ def _add_gate(sub) -> None:
         "--cache", help=f"results cache directory (default: ./{DEFAULT_OUT}/cache, the report's)"
     )
     gate.add_argument(
-        "--jobs", type=parse_count, default=os.cpu_count() or 1, help="local worker processes"
+        "--jobs", type=parse_jobs, default=os.cpu_count() or 1, help="local worker processes"
     )
     _add_limits(gate)
 

@@ -41,7 +41,7 @@ from comparators.limits import check_run, limits_set
 from comparators.parity import ParityError
 from comparators.summary import summarize
 from comparators.trajectory import atomic_path
-from reports.arguments import build_parser
+from reports.arguments import build_parser, one_line
 from reports.outputs import output_dir, output_file
 
 EXIT_BAD_INPUT = 2
@@ -61,8 +61,18 @@ def _scenes(names: list[str] | None) -> list:
     return scenes
 
 
+def _distinct(values: list | None, option: str, what: str) -> None:
+    """InputError when `option` names a value twice (it would run, and show, twice)."""
+    seen = set()
+    for value in values or []:
+        if value in seen:
+            raise InputError(f"{option}: {value!r} given twice: expected distinct {what}")
+        seen.add(value)
+
+
 def _engines(names: list[str] | None) -> list[str]:
-    """The named engines (checked), or every available one."""
+    """The named engines (checked, distinct), or every available one."""
+    _distinct(names, "--engines", "engines")
     engines = names or [name for name, engine in ENGINES.items() if not engine.missing]
     for name in engines:
         get_engine(name)
@@ -178,6 +188,7 @@ def _animated_runs(args, scene, console: Console) -> list[tuple[str, str]]:
     available one that models the case by default, leaving the others out with a line saying
     why) with each of --integrator, or its default."""
     engines = _engines(args.engines)
+    _distinct(args.integrator, "--integrator", "integrators")
     if not args.engines:
         _print_left_out(console, [scene], engines)
         engines = [name for name in engines if not unsupported(ENGINES[name], scene)]
@@ -233,7 +244,9 @@ def _cmd_animate(args, console: Console) -> None:
     dt = scene.dt if args.dt is None else args.dt
     duration = scene.duration if args.duration is None else args.duration
     check_run(scene, dt, duration)
-    cache = ResultsCache(output_dir(args.cache, "--cache") if args.cache else DEFAULT_OUT / "cache")
+    cache = ResultsCache(
+        output_dir(args.cache, "--cache") if args.cache is not None else DEFAULT_OUT / "cache"
+    )
     runs = []
     with console.status(f"running {scene.name}", spinner="dots") as status:
         for engine, integrator in pairs:
@@ -267,7 +280,8 @@ def _cmd_bench(args, console: Console) -> None:
     out = output_file(args.out, "--out", (".csv",))
     scenes = _scenes(args.cases)
     engines = _engines(args.engines)
-    plan_bench(scenes, engines, args.dt, args.duration)  # bad dt or duration: before any run
+    _distinct(args.dt, "--dt", "time steps")
+    plan_bench(scenes, engines, args.dt, args.duration, args.repeats)  # bad dt, duration, repeats
     _print_left_out(console, scenes, engines)
     start = time.perf_counter()
     with console.status("compiling the reference simulator", spinner="dots"):
@@ -287,6 +301,11 @@ def _executor(args):
     """The sweep's executor: local worker processes, or a Dask scheduler."""
     from comparators.sweep import DaskExecutor, LocalExecutor
 
+    if args.executor != "dask" and args.scheduler is not None:
+        raise InputError(
+            f"--scheduler {args.scheduler!r}: only with --executor dask: expected --executor dask "
+            "or no --scheduler"
+        )
     if args.executor == "dask":
         if not args.scheduler:
             raise InputError("--executor dask: expected --scheduler ADDRESS (e.g. tcp://host:8786)")
@@ -323,7 +342,7 @@ def _cmd_report(args, console: Console) -> None:
     engines = _engines(args.engines)
     executor = _executor(args)
     out = output_dir(args.out, "--out")
-    cache_dir = output_dir(args.cache, "--cache") if args.cache else out / "cache"
+    cache_dir = output_dir(args.cache, "--cache") if args.cache is not None else out / "cache"
     specs = plan(scenes, engines, quick=args.quick)  # a run over the limits: before compiling
     cache = ResultsCache(cache_dir)
     with console.status("compiling the reference simulator", spinner="dots"):
@@ -406,6 +425,8 @@ def _cmd_gate(args, console: Console) -> int:
     if args.cases:
         raise InputError("--cases: only with --record OUT.toml (the gates name their cases)")
     junit = output_file(args.junit, "--junit", (".xml",))
+    if args.engine is not None:
+        get_engine(args.engine)  # an unknown --engine is the option's fault, not the files'
     gates = load_gates(_gate_paths(args))
     return _check_gates(args, console, gates, junit, start)
 
@@ -419,7 +440,9 @@ def _check_gates(args, console: Console, gates: list, junit: Path | None, start:
     from reports.arguments import DEFAULT_OUT
 
     plan_checks(gates, args.engine)  # a missing engine or integrator: before any run
-    cache = ResultsCache(output_dir(args.cache, "--cache") if args.cache else DEFAULT_OUT / "cache")
+    cache = ResultsCache(
+        output_dir(args.cache, "--cache") if args.cache is not None else DEFAULT_OUT / "cache"
+    )
     executor = LocalExecutor(args.jobs)
     checks = evaluate(gates, cache, args.engine, executor=executor, console=console)
     console.print(_gate_console_table(checks))
@@ -451,7 +474,9 @@ def _record_gates(args, console: Console, start: float) -> int:
     if get_engine(args.engine).missing:
         raise InputError(f"engine {args.engine!r} is unavailable: {ENGINES[args.engine].missing}")
     scenes = list(zip(args.cases, _scenes(args.cases), strict=True))
-    cache = ResultsCache(output_dir(args.cache, "--cache") if args.cache else DEFAULT_OUT / "cache")
+    cache = ResultsCache(
+        output_dir(args.cache, "--cache") if args.cache is not None else DEFAULT_OUT / "cache"
+    )
     executor = LocalExecutor(args.jobs)
     count = record(scenes, args.engine, out, cache, args.slack, executor=executor, console=console)
     console.print(f"gate: recorded {count} gates in {out.as_posix()}", markup=False, soft_wrap=True)
@@ -477,7 +502,7 @@ def _one_line_cache_warnings(shown):
 
     def show(message, category, filename, lineno, file=None, line=None):
         if issubclass(category, CacheWarning):
-            print(f"rigidbench: warning: {message}", file=sys.stderr, flush=True)
+            print(f"rigidbench: warning: {one_line(str(message))}", file=sys.stderr, flush=True)
         else:
             shown(message, category, filename, lineno, file, line)
 
@@ -495,13 +520,13 @@ def main(argv: list[str] | None = None) -> int:
             status = COMMANDS[args.command](args, console) or 0
             check()  # a Ctrl-C that came inside a compiler callback and could not stop the command
     except InputError as exc:
-        print(f"rigidbench: error: {exc}", file=sys.stderr)
+        print(f"rigidbench: error: {one_line(str(exc))}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except ParityError as exc:
-        print(f"rigidbench: parity error: {exc}", file=sys.stderr)
+        print(f"rigidbench: parity error: {one_line(str(exc))}", file=sys.stderr)
         return EXIT_PARITY
     except (ContractError, EngineFailure) as exc:
-        print(f"rigidbench: engine error: {exc}", file=sys.stderr)
+        print(f"rigidbench: engine error: {one_line(str(exc))}", file=sys.stderr)
         return EXIT_PARITY
     except KeyboardInterrupt:
         # The pools have stopped their workers on the way out (`comparators.interrupt`) and

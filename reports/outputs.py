@@ -29,7 +29,7 @@ def _writable(directory: Path, option: str, text: str) -> None:
 def output_file(text: str | None, option: str, suffixes: tuple[str, ...]) -> Path | None:
     """`option`'s FILE (None when not given): ending in one of `suffixes`, not a directory, in
     an existing writable directory."""
-    if not text:
+    if text is None:
         return None
     out = Path(text)
     if out.suffix.lower() not in suffixes:
@@ -38,6 +38,8 @@ def output_file(text: str | None, option: str, suffixes: tuple[str, ...]) -> Pat
         )
     if out.is_dir():
         raise InputError(f"{option} {text!r}: is a directory: expected a file name")
+    if out.parent.exists() and not out.parent.is_dir():
+        raise InputError(f"{option} {text!r}: {str(out.parent)!r} is a file: expected a directory")
     if not out.parent.is_dir():
         raise InputError(f"{option} {text!r}: directory {str(out.parent)!r} missing")
     _writable(out.parent, option, text)
@@ -47,12 +49,16 @@ def output_file(text: str | None, option: str, suffixes: tuple[str, ...]) -> Pat
 def output_dir(text: str, option: str) -> Path:
     """`option`'s DIR: an existing writable directory, or a new one in an existing writable
     directory."""
+    if not text:
+        raise InputError(f"{option} {text!r}: expected a directory name")
     out = Path(text)
     if out.exists() and not out.is_dir():
         raise InputError(f"{option} {text!r}: is a file: expected a directory")
     if out.is_dir():
         _writable(out, option, text)
         return out
+    if out.parent.exists() and not out.parent.is_dir():
+        raise InputError(f"{option} {text!r}: {str(out.parent)!r} is a file: expected a directory")
     if not out.parent.is_dir():
         raise InputError(f"{option} {text!r}: directory {str(out.parent)!r} missing")
     _writable(out.parent, option, text)

@@ -86,7 +86,7 @@ BAD = [
     (["gate"], "gate: expected gate files or directories"),
     (["gate", "nope.toml"], "nope.toml: no such gate file or directory"),
     (["gate", "bad.toml"], "bad.toml: gate 'mj': key 'limits.energy_drift.max': expected a finite"),
-    (["gate", "spin.toml", "--engine", "warp"], "gate 'blog': key 'engine': unknown engine 'warp'"),
+    (["gate", "spin.toml", "--engine", "warp"], "error: unknown engine 'warp': expected one of"),
     (["gate", "spin.toml", "--engine", "pybullet"], "key 'integrator': unknown integrator 'seed'"),
     (["gate", "spin.toml", "--junit", "out.txt"], "--junit 'out.txt': expected a file name ending"),
     (["gate", "spin.toml", "--junit", "no/out.xml"], "--junit 'no/out.xml': directory 'no' "),

@@ -61,7 +61,7 @@ def test_a_bad_limit_in_the_environment_is_named(monkeypatch):
     ("args", "message"),
     [
         (["run", "dropped_cube", "--duration", "1e6"], "raise it with --max-recorded"),
-        (["run", "dropped_cube", "--dt", "1e-300"], "raise it with --max-steps"),
+        (["run", "dropped_cube", "--dt", "1e-90"], "raise it with --max-steps"),
         (["bench", "--cases", "slide", "--dt", "1e-12"], "raise it with --max-steps"),
         (["animate", "slide", "--dt", "1e-12", "--out", "a.gif"], "raise it with --max-steps"),
         (["report", "--cases", "slide", "--max-steps", "2"], "over the limit of 2"),
