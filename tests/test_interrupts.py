@@ -150,7 +150,7 @@ def test_report_interrupted_stops_workers_and_keeps_cache_whole(tmp_path):
 SINGLE_RUN_COMMANDS = {
     "run": ("run", "CASE", "--engine", "reference", "--out", "out.csv"),
     "bench": ("bench", "--cases", "CASE", "--engines", "reference", "--duration", "1e6",
-              "--out", "out.csv"),
+              "--max-steps", "1e9", "--out", "out.csv"),  # warm-up and repeats: 6e8 steps
     "animate": ("animate", "CASE", "--engines", "reference", "--out", "out.gif"),
 }  # fmt: skip
 
