@@ -14,7 +14,7 @@ from cases.errors import InputError
 from cases.scene import Scene
 from comparators.engine_output import NOTE_PREFIX, captured_output
 from comparators.limits import check_run
-from comparators.parity import ParityError, check_parity
+from comparators.parity import FLOAT64_EPSILON, ParityError, check_parity
 from comparators.trajectory import COLUMNS, Trajectory
 
 
@@ -34,6 +34,8 @@ class Engine(Protocol):
 
     # Optional: `unsupported(scene) -> str | None`, why the engine cannot model `scene` (for
     # example contact), else None. Sweeps, benches and scaling leave such runs out and say so.
+    # Optional: `epsilon: float`, the machine epsilon of the engine's arithmetic (float32's for a
+    # single-precision engine); float64's when absent. The parity check's tolerance scales with it.
 
     def run(self, scene: Scene, integrator: str, dt: float, duration: float) -> Trajectory: ...
 
@@ -207,7 +209,7 @@ def run(
         check_contract(scene, engine, traj)
         said = {**traj.meta.messages, **output.messages}
         traj = dataclasses.replace(traj, meta=dataclasses.replace(traj.meta, messages=said))
-        check_parity(scene, traj.meta)
+        check_parity(scene, traj.meta, getattr(eng, "epsilon", FLOAT64_EPSILON))
     except Exception as exc:
         if output is not None and output.messages:
             exc.add_note(output.note())

@@ -17,10 +17,14 @@ from comparators.trajectory import RunMeta
 # room for an engine's own re-diagonalisation of the inertia (rounding ~1e-15) and nothing more.
 PARITY_RTOL = 1e-9
 # An engine that keeps L or body-frame omega reads omega back through a solve with the inertia,
-# which loses up to cond(I) times the float64 rounding (the bound of a backward-stable solve;
-# measured up to 0.2 of it): added to PARITY_RTOL for the scene's worst-conditioned body, so that
-# a needle or a thin plate with cond(I) near 1e12 is not an adapter error.
-SOLVE_ROUNDING = np.finfo(float).eps
+# which loses up to cond(I) times the arithmetic's epsilon (the bound of a backward-stable solve;
+# measured up to 0.2 of it in float64): added for the scene's worst-conditioned body, so that a
+# needle or a thin plate with cond(I) near 1e12 is not an adapter error.
+FLOAT64_EPSILON = float(np.finfo(float).eps)
+# A single-precision engine stores every quantity rounded to its epsilon and sums a few dozen of
+# them in the readback: PARITY_RTOL becomes at least this many of its epsilons (7.6e-6 for
+# float32; for float64 1.4e-14, below PARITY_RTOL).
+PARITY_ULPS = 64
 
 
 class ParityError(RuntimeError):
@@ -58,15 +62,16 @@ def _relative(a, b) -> float:
     return float(np.linalg.norm(a - b) / scale) if scale > 0 else float(np.linalg.norm(a))
 
 
-def parity_tolerance(scene: Scene) -> float:
-    """PARITY_RTOL plus the rounding of a solve with the worst-conditioned body's inertia."""
+def parity_tolerance(scene: Scene, epsilon: float = FLOAT64_EPSILON) -> float:
+    """PARITY_RTOL, or PARITY_ULPS epsilons of the engine's arithmetic if more, plus the
+    rounding of a solve with the worst-conditioned body's inertia."""
     conditioning = max(np.linalg.cond(b.inertia) for b in scene.bodies)
-    return PARITY_RTOL + float(conditioning) * SOLVE_ROUNDING
+    return max(PARITY_RTOL, PARITY_ULPS * epsilon) + float(conditioning) * epsilon
 
 
-def check_parity(scene: Scene, meta: RunMeta) -> dict[str, float]:
+def check_parity(scene: Scene, meta: RunMeta, epsilon: float = FLOAT64_EPSILON) -> dict[str, float]:
     """Relative mismatches of mass, inertia, energy, p and L at t = 0; ParityError above
-    `parity_tolerance`."""
+    `parity_tolerance` for an engine computing with `epsilon`."""
     expected = [
         body_readback(b.mass, b.inertia, b.com, b.velocity, b.angular_velocity)
         for b in scene.bodies
@@ -80,7 +85,7 @@ def check_parity(scene: Scene, meta: RunMeta) -> dict[str, float]:
     got = _energy_and_momenta(scene, actual)
     for k, quantity in enumerate(("energy", "momentum", "angular_momentum")):
         errors[quantity] = _relative(got[k], want[k])
-    tolerance = parity_tolerance(scene)
+    tolerance = parity_tolerance(scene, epsilon)
     for quantity, err in errors.items():
         if not err <= tolerance:
             raise ParityError(
