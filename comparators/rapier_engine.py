@@ -51,20 +51,21 @@ class RapierSettings:
     num_internal_pgs_iterations: int = 4  # Rapier's 1 rebounds a 50 m/s e = 0 impact at 3.7 m/s
     num_internal_stabilization_iterations: int = 1
     gyroscopic_forces: bool = True  # the scene is a rigid body: Euler's equations in full
+    can_sleep: bool = False
     allow_fast_rotation: bool = True  # no clamp of |omega| h at ~45 degrees per substep
     ccd: bool = False
     soft_ccd_prediction: float = 0.0
     contact_skin: float = 0.0  # m
-    prediction_distance: float = 0.002  # m (normalized_prediction_distance, length_unit 1 m)
-    allowed_linear_error: float = 0.001  # m
+    prediction_distance: float = 0.002  # m; Rapier's 0.02 bounces at 0.544 for e = 0.5
+    allowed_linear_error: float = 0.005  # m, Rapier's default
     max_corrective_velocity: float = 3.0  # m/s, Rapier's default
-    friction_model: str = "COULOMB"  # one friction constraint per contact point
+    friction_model: str = "COULOMB"  # per contact point, the scene's model (SIMPLIFIED default)
     warmstart_coefficient: float = 1.0
     contact_natural_frequency: float = 30.0  # Hz, Rapier's default
     contact_damping_ratio: float = 10.0  # Rapier's default
     static_contact_natural_frequency: float = 60.0  # Hz, against fixed bodies; Rapier's default
     static_contact_damping_ratio: float = 10.0  # Rapier's default
-    contact_recycling: bool = False  # contacts recomputed every step
+    contact_recycling: bool = True  # Rapier's default; off changed no outcome
     max_linear_velocity: float = 1e30  # m/s per substep cap (Rapier's 400 would clip)
 
     def apply(self, params, dt: float) -> None:
@@ -114,7 +115,7 @@ def _add_body(world, body, contact: bool, e: float, mu: float, settings: RapierS
         .linear_damping(0.0)
         .angular_damping(0.0)
         .gravity_scale(1.0)
-        .can_sleep(False)
+        .can_sleep(settings.can_sleep)
         .ccd_enabled(settings.ccd)
         .soft_ccd_prediction(settings.soft_ccd_prediction)
     )
@@ -279,7 +280,9 @@ def parity_manifest(
         "gravity": list(scene.gravity),
         "linear_damping": 0.0,
         "angular_damping": 0.0,
-        "sleeping": "disabled (can_sleep false)",
+        "sleeping": "enabled (Rapier's thresholds)"
+        if settings.can_sleep
+        else "disabled (can_sleep false)",
         "ccd": settings.ccd,
         "soft_ccd_prediction": settings.soft_ccd_prediction,
         "threads": 1,
