@@ -35,6 +35,8 @@ else:
     UNAVAILABLE = None
 
 FLOAT32_EPSILON = float(np.finfo(np.float32).eps)
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+FLOAT32_TINY = float(np.finfo(np.float32).tiny)  # the smallest normal f32
 
 TIME_STEPPING = {
     "tgs_soft": "TGS-soft: per step, num_solver_iterations substeps of dt / n, each semi-implicit "
@@ -119,12 +121,7 @@ def _add_body(world, body, contact: bool, e: float, mu: float, settings: RapierS
         .ccd_enabled(settings.ccd)
         .soft_ccd_prediction(settings.soft_ccd_prediction)
     )
-    colliders = None
-    if contact:
-        colliders = [
-            _ball(offset, body.particle_radius, e, mu, settings)
-            for offset in body.positions - body.com
-        ]
+    colliders = [_particles(body, e, mu, settings)] if contact else None
     handle = world.add_body(builder, colliders=colliders)
     # Mass properties are otherwise only summed at the first step: the read-back needs them now.
     world.rigid_bodies[handle].recompute_mass_properties_from_colliders(world.colliders)
@@ -141,8 +138,17 @@ def _material(builder, e: float, mu: float, settings: RapierSettings):
     )
 
 
-def _ball(offset, radius: float, e: float, mu: float, settings: RapierSettings):
-    builder = r.Collider.ball(float(radius)).translation(_vec(offset)).density(0.0)
+def _particles(body, e: float, mu: float, settings: RapierSettings):
+    """One compound collider of the particles' balls at the body's origin (the COM), with zero
+    mass properties: Rapier then keeps the explicit ones exactly. Separate zero-density balls
+    would not: each has its own centre, so summing them re-diagonalises the tensor in f32 (a
+    degenerate pair of moments came back 1e-4 off)."""
+    ball = r.SharedShape.ball(float(body.particle_radius))
+    parts = [
+        (r.Isometry3(_vec(offset), r.Rotation3.identity()), ball)
+        for offset in body.positions - body.com
+    ]
+    builder = r.Collider.compound(parts).mass_properties(r.MassProperties.zero())
     return _material(builder, e, mu, settings)
 
 
@@ -317,6 +323,39 @@ def run_rapier(
     return timer.trajectory(sampled, samples_from_raw(raw, len(handles)), meta)
 
 
+def outside_float32(scene: Scene) -> str | None:
+    """Why the scene's numbers cannot be held in Rapier's f32, else None: a mass, principal
+    moment, position, velocity, radius, gravity or plane point beyond f32's largest value, or a
+    non-zero one below its smallest normal value (flushed towards 0)."""
+    quantities = [("gravity", np.asarray(scene.gravity, dtype=float))]
+    for plane in scene.planes if scene.has_contact else ():
+        quantities.append(("a plane's point", np.asarray(plane.point, dtype=float)))
+    for body in scene.bodies:
+        moments = np.linalg.eigvalsh(body.inertia)
+        quantities += [
+            (f"body {body.name!r}'s mass", np.array([body.mass])),
+            (f"body {body.name!r}'s principal moments", moments),
+            (f"body {body.name!r}'s particle positions", body.positions),
+            (f"body {body.name!r}'s particle radius", np.array([body.particle_radius])),
+            (f"body {body.name!r}'s velocity", np.asarray(body.velocity, dtype=float)),
+            (
+                f"body {body.name!r}'s angular velocity",
+                np.asarray(body.angular_velocity, dtype=float),
+            ),
+        ]
+    for what, values in quantities:
+        magnitude = np.abs(values)
+        if not np.all(np.isfinite(magnitude)) or magnitude.max() > FLOAT32_MAX:
+            return f"{what} exceeds float32's range ({FLOAT32_MAX:.3g}): Rapier computes in f32"
+        nonzero = magnitude[magnitude > 0]
+        if nonzero.size and nonzero.min() < FLOAT32_TINY:
+            return (
+                f"{what} has a value of {nonzero.min():.3g}, below float32's smallest normal "
+                f"({FLOAT32_TINY:.3g}): Rapier computes in f32"
+            )
+    return None
+
+
 class RapierEngine:
     name = "rapier"
     integrators = ("tgs_soft",)
@@ -324,6 +363,10 @@ class RapierEngine:
     orders = {"tgs_soft": 1}  # semi-implicit Euler substeps
     missing = UNAVAILABLE
     epsilon = FLOAT32_EPSILON
+
+    def unsupported(self, scene: Scene) -> str | None:
+        """Scenes whose numbers f32 cannot hold (`outside_float32`)."""
+        return outside_float32(scene)
 
     def run(self, scene: Scene, integrator: str, dt: float, duration: float) -> Trajectory:
         return run_rapier(scene, integrator, dt, duration)

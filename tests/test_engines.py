@@ -33,6 +33,12 @@ RUNS = [
 # only when a pose is evaluated): their free-spin error is that truncation, gated against its
 # closed form in tests/test_drake_adapter.py.
 FREE_SPIN_ATOL = 1e-9
+# Rapier computes in float32 and its gyroscopic update scales omega by ~(1 + eps32) every
+# substep: its free-flight error grows as 1/dt (tumbling_box before the flip: 0.20, 0.42, 0.88
+# degrees at dt 0.004, 0.002, 0.001), so neither exactness nor an order in dt holds. Recorded
+# strictly; its float32 bounds are gated in tests/test_rapier_adapter.py (docs/engines/rapier.md).
+FLOAT32_FREE_FLIGHT = {("rapier", "tgs_soft")}
+FLOAT32_REASON = "float32, error grows as 1/dt (docs/engines/rapier.md)"
 POLYNOMIAL_ROTATION = {("reference", "rk4")} | {
     ("drake", i) for i in ("sap", "tamsi", "semi_explicit_euler", "rk2", "rk3")
 }
@@ -44,7 +50,9 @@ def _errors(traj, scene):
 
 
 @pytest.mark.parametrize(("engine", "integrator"), RUNS)
-def test_free_spin_cube_is_exact(engine, integrator):
+def test_free_spin_cube_is_exact(engine, integrator, request):
+    if (engine, integrator) in FLOAT32_FREE_FLIGHT:
+        request.applymarker(pytest.mark.xfail(strict=True, reason=FLOAT32_REASON))
     if (engine, integrator) in POLYNOMIAL_ROTATION:
         pytest.skip("rotates by a polynomial of exp: gated against its closed-form truncation")
     scene = CATALOG["free_spin_cube"]
@@ -103,7 +111,9 @@ def test_exact_integrator_stays_at_rounding_at_any_dt(dt):
 
 
 @pytest.mark.parametrize(("engine", "integrator"), RUNS)
-def test_tumbling_box_errors_shrink_at_the_integrators_order(engine, integrator):
+def test_tumbling_box_errors_shrink_at_the_integrators_order(engine, integrator, request):
+    if (engine, integrator) in FLOAT32_FREE_FLIGHT:
+        request.applymarker(pytest.mark.xfail(strict=True, reason=FLOAT32_REASON))
     if (engine, integrator) in EXACT_FREE_FLIGHT:
         pytest.skip("closed-form rotation: no truncation error (test_exact_integrator_...)")
     scene = CATALOG["tumbling_box"]

@@ -15,6 +15,8 @@ import pytest
 
 pytest.importorskip("rapier3d")
 
+from cases import Body, Contact, Scene  # noqa: E402
+from cases.builders import floor  # noqa: E402
 from cases.catalog import CATALOG  # noqa: E402
 from cases.exact import exact_states  # noqa: E402
 from comparators import ENGINES, run  # noqa: E402
@@ -207,3 +209,38 @@ def test_settings_manifest():
     np.testing.assert_allclose(
         moments, principal_frame(scene.bodies[0].inertia)[0], rtol=INERTIA_RTOL
     )
+
+
+def test_degenerate_moments_are_kept_with_contact():
+    """A tetrahedron's tensor has a pair of equal moments, so its principal frame is arbitrary in
+    that plane. Zero-density ball colliders made Rapier re-diagonalise the sum in f32 (moments
+    back 1e-4 off, failing parity); the compound of balls with zero mass properties keeps the
+    explicit ones."""
+    tetra = Body(
+        name="b0",
+        particle_radius=1.0,
+        particles=((0, 0, 0, 1.0), (0, 0, 10, 1.0), (0, 10, 0, 1.0), (10, 0, 0, 1.0)),
+    )
+    scene = Scene(
+        name="tetra",
+        duration=0.3,
+        dt=0.1,
+        gravity=(0.0, 0.0, 0.0),
+        contact=Contact(restitution=0.0, friction=0.0),
+        planes=(floor(-10.0),),
+        bodies=(tetra,),
+    )
+    traj = run(scene, "rapier")  # parity checked inside
+    moments = traj.meta.settings["mass_properties"]["b0"]["principal_moments"]
+    np.testing.assert_allclose(moments, principal_frame(tetra.inertia)[0], rtol=INERTIA_RTOL)
+
+
+def test_numbers_beyond_float32_are_unsupported():
+    scene = CATALOG["free_spin_cube"]
+    far = dataclasses.replace(scene.bodies[0], velocity=(1e39, 0.0, 0.0))
+    reason = ENGINES["rapier"].unsupported(dataclasses.replace(scene, bodies=(far,)))
+    assert "velocity exceeds float32's range" in reason
+    tiny = dataclasses.replace(scene.bodies[0], angular_velocity=(1e-40, 0.0, 0.0))
+    reason = ENGINES["rapier"].unsupported(dataclasses.replace(scene, bodies=(tiny,)))
+    assert "below float32's smallest normal" in reason
+    assert all(ENGINES["rapier"].unsupported(s) is None for s in CATALOG.values())
