@@ -2,13 +2,14 @@
 
 Each run builds a fresh `PhysicsWorld`: per scene body a dynamic body at the COM with identity
 rotation, its mass, COM and principal inertia (with its frame) set explicitly as additional mass
-properties; with contact, one zero-density ball collider per particle (so the colliders add no
-mass) and a fixed half-space per plane. Rapier is single precision (this build's `Real` is f32):
-`epsilon` is float32's. Every setting that changes results is set explicitly and recorded in the
-parity manifest (`RapierSettings`): the gyroscopic term on, damping 0, sleeping off, no angular
-speed cap, CCD off, friction and restitution combined by MAX so a contact gets exactly the
-scene's values. Rapier has one time stepper: the TGS-soft solver's substeps of semi-implicit
-Euler, named "tgs_soft".
+properties; with contact, one compound collider of the particles' balls with zero mass
+properties (so Rapier keeps the explicit ones exactly) and a fixed half-space per plane. Rapier
+is single precision (this build's `Real` is f32): `epsilon` is float32's, and scenes whose
+numbers f32 cannot hold are `unsupported`. Every setting that changes results is set explicitly
+and recorded in the parity manifest (`RapierSettings`): the gyroscopic term on, damping 0,
+sleeping off, no angular speed cap, CCD off, friction and restitution combined by MAX so a
+contact gets exactly the scene's values. Rapier has one time stepper: the TGS-soft solver's
+substeps of semi-implicit Euler, named "tgs_soft".
 
 The mapping, the defaults overridden and their measured effect: docs/engines/rapier.md.
 """
