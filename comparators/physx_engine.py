@@ -24,7 +24,7 @@ import warnings
 import numpy as np
 
 from cases.scene import Scene
-from comparators.harness import RunTimer, sample_steps
+from comparators.harness import RunTimer, outside_float32, sample_steps
 from comparators.parity import body_readback
 from comparators.trajectory import Trajectory, package_versions
 from rigidmath.inertia import principal_frame
@@ -307,7 +307,11 @@ def run_physx(
 
 
 def unsupported_reason(scene: Scene) -> str | None:
-    """PhysX reads a zero principal moment as infinite inertia (that axis locked)."""
+    """PhysX computes in float32 (`outside_float32`), and reads a zero principal moment as
+    infinite inertia (that axis locked)."""
+    beyond = outside_float32(scene)
+    if beyond:
+        return beyond
     for body in scene.bodies:
         moments = principal_frame(body.inertia)[0]
         if moments.min() <= EPSILON * moments.max():
