@@ -129,8 +129,9 @@ def _seed_note(shown: pd.DataFrame) -> str:
 def scaling_section(table: pd.DataFrame, figures: dict, out: Path) -> list[str]:
     """The section of a `comparators.scaling.measure_scaling` table, with its figure."""
     landing_s = float(np.sqrt(2 * CUBE_RAIN_CLEARANCE / np.linalg.norm(GRAVITY)))
-    dt = float(table["dt"].iloc[0]) if len(table) else np.nan
-    windows = "; ".join(_window(int(k), dt, landing_s) for k in sorted(table["steps"].unique()))
+    measured = scaling_rows(table)  # the trial's window is not one of the measured windows
+    dt = float(measured["dt"].iloc[0]) if len(measured) else np.nan
+    windows = "; ".join(_window(int(k), dt, landing_s) for k in sorted(measured["steps"].unique()))
     figure = figure_link(figures, SCALING_FIGURE, out, "stepping cost against N")
     figure = "*No scaling figure: no valid run.*" if figure is None else figure
     trial = _trial(table)
