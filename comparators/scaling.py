@@ -73,6 +73,12 @@ FASTEST_TRIAL_STEPS = WHOLE_STEPS
 # a margin near-equal integrators (the reference's `splitting`, `rk4` and `exact` on cube_rain_8,
 # within 8 % of each other) would swap from one measurement to the next.
 FASTEST_MARGIN = 1.1
+# The fastest on cube_rain_8 need not be at larger N (Drake's `tamsi` steps cube_rain_8 about 10 %
+# faster than its default `sap`, cube_rain_100's fall 3 times slower): a fastest series whose
+# fastest repeat at some N costs over this factor times its default's is not run at larger N in
+# that window (its rows say so), so that it adds little to the measurement once it is no longer
+# the fastest. 2, as PLATEAU_FACTOR: fastest repeats still differ by tens of percent.
+FASTEST_DROP_FACTOR = 2.0
 # `series` of a row: which of its engine's integrators it is. A default that is also the fastest
 # is one series, DEFAULT_AND_FASTEST; TRIAL rows are the runs that chose the fastest (cube_rain_8,
 # not part of the scaling plot or tables); OTHER: any other integrator (`all_integrators`).
@@ -188,7 +194,8 @@ def measure_scaling(
     so machine load falls on all of them alike. The verdict is that of the first repeat's
     trajectory. `progress` is called with a label before every run. A pair whose run took over
     `run_limit_s` (setup and stepping) is not run at larger N in that window, nor at an N its
-    engine does not model (`comparators.engine.unsupported`): its rows say so.
+    engine does not model (`comparators.engine.unsupported`), nor a fastest over
+    FASTEST_DROP_FACTOR times its default's cost: its rows say so.
     """
     engines = [n for n, e in ENGINES.items() if not e.missing] if engines is None else engines
     defaults = {name: ENGINES[name].default_integrator for name in engines}
@@ -223,7 +230,25 @@ def measure_scaling(
                 took = np.nan_to_num(row["setup_s"]) + np.nan_to_num(row["wall_max_s"])
                 if pair not in over and took > run_limit_s:
                     over[pair] = f"not run: at N = {n} a run took {took:.3g} s (> {run_limit_s:g})"
+            over |= _no_longer_fastest(by_pair, series, defaults, n, over)
     return pd.DataFrame(rows, columns=SCALING_COLUMNS)
+
+
+def _no_longer_fastest(by_pair: dict, series: dict, defaults: dict, n: int, over: dict) -> dict:
+    """The FASTEST pairs whose fastest repeat at this N took over FASTEST_DROP_FACTOR times
+    their default's, each with why it is not run at larger N."""
+    dropped = {}
+    for (engine, integrator), label in series.items():
+        fast, default = by_pair.get((engine, integrator)), by_pair.get((engine, defaults[engine]))
+        if label != FASTEST or (engine, integrator) in over or fast is None or default is None:
+            continue
+        ratio = fast["wall_min_s"] / default["wall_min_s"]  # NaN unless both valid: not dropped
+        if ratio > FASTEST_DROP_FACTOR:
+            dropped[engine, integrator] = (
+                f"not run: at N = {n} {ratio:.3g} times its default's cost (> "
+                f"{FASTEST_DROP_FACTOR:g}), no longer the fastest"
+            )
+    return dropped
 
 
 def _measure_count(scene, pairs, steps: int, repeats: int, report) -> list[dict]:

@@ -173,6 +173,24 @@ def test_the_chosen_fastest_is_measured_at_every_n(monkeypatch):
     assert sorted(trial_rows(table)["integrator"]) == sorted(ENGINES["mujoco"].integrators)
 
 
+def test_a_fastest_slower_than_its_default_is_not_run_at_larger_n(monkeypatch):
+    real = scaling._measure_count
+
+    def euler_slow(scene, pairs, steps, repeats, report):  # Euler 3x RK4 at N = 1 and after
+        rows = real(scene, pairs, steps, repeats, report)
+        rk4 = next((r["wall_min_s"] for r in rows if r["integrator"] == "RK4"), np.nan)
+        return [r | {"wall_min_s": 3 * rk4} if r["integrator"] == "Euler" else r for r in rows]
+
+    monkeypatch.setattr(scaling, "choose_fastest", lambda runs, defaults: {"mujoco": "Euler"})
+    monkeypatch.setattr(scaling, "_measure_count", euler_slow)
+    table = measure_scaling(COUNTS, engines=["mujoco"], windows=(STEPS,), repeats=1,
+                            fastest_trial=TRIAL)  # fmt: skip
+    euler = scaling_rows(table).query("integrator == 'Euler'").set_index("n_bodies")
+    assert euler.loc[1, "verdict"] == "ok"
+    assert euler.loc[2, "verdict"].startswith("not run: at N = 1 3 times its default's cost")
+    assert (scaling_rows(table).query("integrator == 'RK4'")["verdict"] == "ok").all()
+
+
 def trial_table(rates: dict[tuple[str, str], float], verdicts=None) -> pd.DataFrame:
     """Trial rows whose fastest repeats run `rates` steps/s by (engine, integrator)."""
     rows = []
