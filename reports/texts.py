@@ -263,10 +263,10 @@ def scaling(landing_s: float, windows: str, fastest: bool = False) -> str:
     )
 
 
-def fastest(case: str, steps: int, dt: float, margin: float, seed: str) -> str:
+def fastest(case: str, steps: int, dt: float, margin: float, drop: float, seed: str) -> str:
     """How each engine's fastest integrator was chosen: the trial on `case` over `steps` steps
-    of `dt`, the default kept within `margin` times; `seed` says whether the reference's `seed`
-    was chosen."""
+    of `dt`, the default kept within `margin` times, a fastest over `drop` times its default's
+    cost not run at larger N; `seed` says whether the reference's `seed` was chosen."""
     return (
         'How "fastest" was chosen: by measurement, not by a list. Every integrator of each '
         f"engine ran `{case}` over its first {steps} steps ({steps * dt:g} s: landings and the "
@@ -276,6 +276,8 @@ def fastest(case: str, steps: int, dt: float, margin: float, seed: str) -> str:
         f"unless another exceeds the default's rate by more than {margin - 1:.0%} (near-equal "
         "integrators would otherwise swap between measurements). Users compare against the "
         "fastest setting of the engine they would otherwise pick, hence both series. The "
+        f"fastest on `{case}` need not be at larger N: a fastest costing over {drop:g} times its "
+        "default's at some N is not run at larger N in that window (its rows say so). The "
         "reference's candidates are all five integrators; `seed`, the blog's scheme, tests "
         f"every pair of particles and counts only when it is the fastest valid one: {seed}."
     )

@@ -12,6 +12,7 @@ import pandas as pd
 from cases.catalog import CUBE_RAIN_CLEARANCE, GRAVITY
 from comparators.scaling import (
     FASTEST,
+    FASTEST_DROP_FACTOR,
     FASTEST_MARGIN,
     OTHER,
     plateau_ends,
@@ -101,6 +102,7 @@ def _trial(table: pd.DataFrame) -> tuple[str, str] | None:
         int(trial["steps"].iloc[0]),
         float(trial["dt"].iloc[0]),
         FASTEST_MARGIN,
+        FASTEST_DROP_FACTOR,
         _seed_note(shown),
     )
     return text, markdown_table(shown, {"repeats": format_count})
