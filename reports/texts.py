@@ -155,7 +155,10 @@ CONVERGENCE = (
     "fitted order; fits use valid runs with errors between "
     f"{ERROR_FLOOR_DEG:g} deg (rounding below) and {ERROR_CEILING_DEG:g} deg (saturation "
     f"above) and need {MIN_FIT_POINTS} such dt. R² near 1: a clean power law. Position "
-    f'order "exact": every position error is below {POSITION_FLOOR_M:g} m (rounding).'
+    f'order "exact": every position error is below {POSITION_FLOOR_M:g} m (rounding). A '
+    "single-precision engine (PhysX, Rapier: float32) has a precision floor of its own: where "
+    "its errors stop falling as dt shrinks, rounding has overtaken truncation; the fit stops at "
+    'its smallest error and its note says "precision floor" and below which dt.'
 )
 CONTACT_ORDER_NOTE = (
     " With contact, impacts are resolved once per step, so no integrator converges faster "
