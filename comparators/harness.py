@@ -26,6 +26,41 @@ import numpy as np
 from cases.scene import Scene
 from comparators.trajectory import RunMeta, Trajectory
 
+# A single-precision engine multiplies up to three of a scene's quantities (m r^2, I w^2): each
+# within FLOAT32_SPAN of 1 (or 0), the products stay within float32's range (1.2e-38 to 3.4e38).
+FLOAT32_SPAN = 1e12
+
+
+def outside_float32(scene: Scene) -> str | None:
+    """Why a single-precision engine cannot hold `scene`, else None: a number of the scene or
+    a body's principal moment or energy, not 0, outside 1 / FLOAT32_SPAN to FLOAT32_SPAN. For an
+    adapter's `unsupported`."""
+    numbers = {"gravity": scene.gravity}
+    numbers.update({f"plane {k} point": p.point for k, p in enumerate(scene.planes)})
+    for b in scene.bodies:
+        w = np.asarray(b.angular_velocity)
+        numbers.update(
+            {
+                f"body {b.name!r} particles": np.asarray(b.particles).ravel(),
+                f"body {b.name!r} particle radius": b.particle_radius,
+                f"body {b.name!r} velocity": b.velocity,
+                f"body {b.name!r} angular velocity": w,
+                f"body {b.name!r} principal moments": np.linalg.eigvalsh(b.inertia),
+                f"body {b.name!r} kinetic energy": 0.5 * b.mass * np.dot(b.velocity, b.velocity),
+                f"body {b.name!r} rotational energy": 0.5 * w @ b.inertia @ w,
+            }
+        )
+    for what, values in numbers.items():
+        sizes = np.abs(np.atleast_1d(np.asarray(values, dtype=float)))
+        sizes = sizes[sizes > 0]
+        if sizes.size and not (1 / FLOAT32_SPAN <= sizes.min() and sizes.max() <= FLOAT32_SPAN):
+            worst = sizes.max() if sizes.max() > FLOAT32_SPAN else sizes.min()
+            return (
+                f"its {what} include {worst:.3g}, outside 1e-12 to 1e12: single precision "
+                "cannot hold the products the engine forms of it"
+            )
+    return None
+
 
 def sample_steps(n_steps: int, stride: int) -> np.ndarray:
     """The step indices every engine samples: 0, every `stride` steps, and the last one."""

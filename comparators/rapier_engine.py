@@ -21,7 +21,7 @@ import dataclasses
 import numpy as np
 
 from cases.scene import Scene
-from comparators.harness import RunTimer, sample_steps
+from comparators.harness import RunTimer, outside_float32, sample_steps
 from comparators.parity import body_readback
 from comparators.trajectory import Trajectory, package_versions
 from rigidmath.inertia import principal_frame
@@ -36,8 +36,6 @@ else:
     UNAVAILABLE = None
 
 FLOAT32_EPSILON = float(np.finfo(np.float32).eps)
-FLOAT32_MAX = float(np.finfo(np.float32).max)
-FLOAT32_TINY = float(np.finfo(np.float32).tiny)  # the smallest normal f32
 
 TIME_STEPPING = {
     "tgs_soft": "TGS-soft: per step, num_solver_iterations substeps of dt / n, each semi-implicit "
@@ -324,39 +322,6 @@ def run_rapier(
     return timer.trajectory(sampled, samples_from_raw(raw, len(handles)), meta)
 
 
-def outside_float32(scene: Scene) -> str | None:
-    """Why the scene's numbers cannot be held in Rapier's f32, else None: a mass, principal
-    moment, position, velocity, radius, gravity or plane point beyond f32's largest value, or a
-    non-zero one below its smallest normal value (flushed towards 0)."""
-    quantities = [("gravity", np.asarray(scene.gravity, dtype=float))]
-    for plane in scene.planes if scene.has_contact else ():
-        quantities.append(("a plane's point", np.asarray(plane.point, dtype=float)))
-    for body in scene.bodies:
-        moments = np.linalg.eigvalsh(body.inertia)
-        quantities += [
-            (f"body {body.name!r}'s mass", np.array([body.mass])),
-            (f"body {body.name!r}'s principal moments", moments),
-            (f"body {body.name!r}'s particle positions", body.positions),
-            (f"body {body.name!r}'s particle radius", np.array([body.particle_radius])),
-            (f"body {body.name!r}'s velocity", np.asarray(body.velocity, dtype=float)),
-            (
-                f"body {body.name!r}'s angular velocity",
-                np.asarray(body.angular_velocity, dtype=float),
-            ),
-        ]
-    for what, values in quantities:
-        magnitude = np.abs(values)
-        if not np.all(np.isfinite(magnitude)) or magnitude.max() > FLOAT32_MAX:
-            return f"{what} exceeds float32's range ({FLOAT32_MAX:.3g}): Rapier computes in f32"
-        nonzero = magnitude[magnitude > 0]
-        if nonzero.size and nonzero.min() < FLOAT32_TINY:
-            return (
-                f"{what} has a value of {nonzero.min():.3g}, below float32's smallest normal "
-                f"({FLOAT32_TINY:.3g}): Rapier computes in f32"
-            )
-    return None
-
-
 class RapierEngine:
     name = "rapier"
     integrators = ("tgs_soft",)
@@ -366,7 +331,7 @@ class RapierEngine:
     epsilon = FLOAT32_EPSILON
 
     def unsupported(self, scene: Scene) -> str | None:
-        """Scenes whose numbers f32 cannot hold (`outside_float32`)."""
+        """Scenes whose numbers single precision cannot hold (`harness.outside_float32`)."""
         return outside_float32(scene)
 
     def run(self, scene: Scene, integrator: str, dt: float, duration: float) -> Trajectory:

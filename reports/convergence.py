@@ -24,6 +24,21 @@ MIN_FIT_POINTS = 3
 POSITION_FLOOR_M = 1e-12
 
 KEYS = ["case", "engine", "integrator"]
+# float64's epsilon: an engine computing with a larger one (`Engine.epsilon`, float32's) has a
+# precision floor of its own, found from its errors (`precision_floor`).
+FLOAT64_EPSILON = float(np.finfo(float).eps)
+
+
+def precision_floor(dt: np.ndarray, error: np.ndarray) -> float | None:
+    """The dt below which a single-precision engine's errors stop falling: that of its smallest
+    error, when some smaller dt has a larger one (rounding, which grows with the steps, has
+    overtaken the truncation error); None when the errors fall down to the smallest dt."""
+    finite = np.isfinite(error)
+    if finite.sum() < 2:
+        return None
+    dt, error = dt[finite], error[finite]
+    best = dt[np.argmin(error)]
+    return float(best) if (dt < best).any() else None
 
 
 def fit_power_law(dt: np.ndarray, error: np.ndarray, floor: float, ceiling: float) -> dict:
@@ -64,15 +79,27 @@ def fit_orders(results: pd.DataFrame, orders: dict[tuple[str, str], int]) -> pd.
     orientation errors (deg) are fitted inside [ERROR_FLOOR_DEG, ERROR_CEILING_DEG], position
     errors (m) above POSITION_FLOOR_M. Columns: case, engine, integrator, expected_order,
     order, r2, points, dt_min, dt_max (s), note (starting "rounding" when every orientation
-    error is below ERROR_FLOOR_DEG), and the same prefixed `position_` for position errors
-    (note "exact" when every position error is below POSITION_FLOOR_M).
+    error is below ERROR_FLOOR_DEG, or "precision floor" when a single-precision engine's
+    errors stop falling as dt shrinks: the fit then leaves out the dt below its smallest error),
+    and the same prefixed `position_` for position errors (note "exact" when every position
+    error is below POSITION_FLOOR_M).
     """
     rows = []
     for (case, engine, integrator), runs in results.groupby(KEYS, sort=False):
         valid = runs[runs["verdict"] == "ok"]
         dt = valid["dt"].to_numpy(float)
         error = valid["orientation_error_deg"].to_numpy(float)
-        fit = fit_power_law(dt, error, ERROR_FLOOR_DEG, ERROR_CEILING_DEG)
+        floor_dt = None
+        if _epsilon(engine) > FLOAT64_EPSILON:
+            floor_dt = precision_floor(dt, error)
+        kept = dt >= floor_dt if floor_dt is not None else np.ones(len(dt), dtype=bool)
+        fit = fit_power_law(dt[kept], error[kept], ERROR_FLOOR_DEG, ERROR_CEILING_DEG)
+        if floor_dt is not None:
+            below = (
+                f"precision floor: {_precision(engine)} errors stop falling below "
+                f"dt {floor_dt:g} s, fitted above it"
+            )
+            fit["note"] = f"{below}; {fit['note']}" if fit["note"] else below
         finite = error[np.isfinite(error)]
         if not len(finite):
             fit["note"] = "no valid run with an orientation error"
@@ -82,6 +109,16 @@ def fit_orders(results: pd.DataFrame, orders: dict[tuple[str, str], int]) -> pd.
         row["expected_order"] = orders.get((engine, integrator), np.nan)
         rows.append(row | fit | _position_fit(dt, valid["position_error"].to_numpy(float)))
     return pd.DataFrame(rows)
+
+
+def _epsilon(engine: str) -> float:
+    from comparators.engine import ENGINES
+
+    return float(getattr(ENGINES.get(engine), "epsilon", FLOAT64_EPSILON))
+
+
+def _precision(engine: str) -> str:
+    return "float32" if _epsilon(engine) == float(np.finfo(np.float32).eps) else "its"
 
 
 def pareto_front(df: pd.DataFrame, x: str, y: str) -> pd.DataFrame:

@@ -26,6 +26,7 @@ from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 from cases.scene import Scene
 from comparators.engine import ENGINES
 from comparators.metrics import conserved_quantities
+from comparators.scaling import FASTEST, scaling_rows
 from comparators.trajectory import Trajectory, atomic_path
 from reports.convergence import ERROR_CEILING_DEG, ERROR_FLOOR_DEG, pareto_front
 
@@ -339,9 +340,12 @@ def plot_throughput(table: pd.DataFrame, path: Path, title: str | None = None) -
 
 def plot_scaling(table: pd.DataFrame, path: Path) -> Path | None:
     """Stepping wall time per step (s) against the number of bodies N, log-log, one panel per
-    window (steps from t = 0) and one line per engine/integrator, valid runs only (rows of
-    `comparators.scaling.measure_scaling`). The dashed line grows as N through the smallest cost
-    per body-step of the panel: a line parallel to it scales linearly. None: no valid run."""
+    window (steps from t = 0) and one line per engine/integrator labelled with its series
+    (default solid, fastest dotted, in the engine's colour), valid runs only (rows of
+    `comparators.scaling.measure_scaling`, not the trial's). The dashed line grows as N through
+    the smallest cost per body-step of the panel: a line parallel to it scales linearly. None:
+    no valid run."""
+    table = scaling_rows(table)
     valid = table[(table["verdict"] == "ok") & np.isfinite(table["cost_per_step_s"])]
     if valid.empty:
         return None
@@ -351,8 +355,12 @@ def plot_scaling(table: pd.DataFrame, path: Path) -> Path | None:
         own = valid[valid["steps"] == steps]
         for (engine, integrator), pair in own.groupby(PAIR, sort=False):
             pair = pair.sort_values("n_bodies")
-            label = f"{engine} {integrator}" if ax is axes[0] else None
+            series = pair["series"].iloc[0]
+            named = f" ({series})" if isinstance(series, str) and series else ""
+            label = f"{engine} {integrator}{named}" if ax is axes[0] else None
             style = run_style(engine, integrator)
+            if named:  # an engine's two series: its colour, solid for the default, dotted
+                style["linestyle"] = ":" if series == FASTEST else "-"
             ax.plot(pair["n_bodies"], pair["cost_per_step_s"], label=label, **style)
         n = np.sort(own["n_bodies"].unique()).astype(float)
         slope = own["cost_per_body_step_s"].min()
@@ -365,5 +373,5 @@ def plot_scaling(table: pd.DataFrame, path: Path) -> Path | None:
         ax.set_title(f"the first {steps} steps from t = 0 ({steps * dt:g} s)", fontsize=10)
     axes[-1].set_xlabel("N (bodies)")
     fig.suptitle("cube_rain_N: stepping cost against N", fontsize=11)
-    _legend_below(fig, ncols=4)
+    _legend_below(fig, ncols=3)  # "engine integrator (default, fastest)": four would not fit
     return _save(fig, path)

@@ -155,7 +155,10 @@ CONVERGENCE = (
     "fitted order; fits use valid runs with errors between "
     f"{ERROR_FLOOR_DEG:g} deg (rounding below) and {ERROR_CEILING_DEG:g} deg (saturation "
     f"above) and need {MIN_FIT_POINTS} such dt. R² near 1: a clean power law. Position "
-    f'order "exact": every position error is below {POSITION_FLOOR_M:g} m (rounding).'
+    f'order "exact": every position error is below {POSITION_FLOOR_M:g} m (rounding). A '
+    "single-precision engine (PhysX, Rapier: float32) has a precision floor of its own: where "
+    "its errors stop falling as dt shrinks, rounding has overtaken truncation; the fit stops at "
+    'its smallest error and its note says "precision floor" and below which dt.'
 )
 CONTACT_ORDER_NOTE = (
     " With contact, impacts are resolved once per step, so no integrator converges faster "
@@ -239,12 +242,18 @@ COST_TO_TOLERANCE = (
 )
 
 
-def scaling(landing_s: float, windows: str) -> str:
+def scaling(landing_s: float, windows: str, fastest: bool = False) -> str:
     """The scaling figure and table; `landing_s` is when the bottom layer lands, `windows`
-    describes the measured windows."""
+    describes the measured windows; `fastest`: each engine's fastest integrator ran too."""
+    which = (
+        "each engine with its default integrator (series `default`) and its fastest for "
+        "contact scenes (`fastest`, chosen as below; `default, fastest` where they are one)"
+        if fastest
+        else "each engine with its default integrator"
+    )
     return (
         "How to read: the stepping cost of `cube_rain_N`, N cubes raining into an open box "
-        "(`cases.catalog.cube_rain`), against N, each engine with its default integrator, run "
+        f"(`cases.catalog.cube_rain`), against N, {which}, run "
         "from t = 0 through the same path as every run (trajectory recorded). Times are "
         "stepping only, the median of the repeats (min and max in `scaling.csv`), engines "
         "interleaved; setup (model building and compilation) is apart. On the log-log plot a "
@@ -254,6 +263,26 @@ def scaling(landing_s: float, windows: str) -> str:
         "per body at every N, a cost per body that grows is the engine's collision detection. "
         "A longer window adds contact solving, and the work per body then grows with the pile "
         f"as well (a lone cube touches only the floor). Windows: {windows}."
+    )
+
+
+def fastest(case: str, steps: int, dt: float, margin: float, drop: float, seed: str) -> str:
+    """How each engine's fastest integrator was chosen: the trial on `case` over `steps` steps
+    of `dt`, the default kept within `margin` times, a fastest over `drop` times its default's
+    cost not run at larger N; `seed` says whether the reference's `seed` was chosen."""
+    return (
+        'How "fastest" was chosen: by measurement, not by a list. Every integrator of each '
+        f"engine ran `{case}` over its first {steps} steps ({steps * dt:g} s: landings and the "
+        "pile, contact solving included), interleaved as above; the table below gives each "
+        "one's steps/s in its fastest repeat (other processes only ever add time). An "
+        "engine's fastest is the valid run (verdict ok) with the most steps/s, but its default "
+        f"unless another exceeds the default's rate by more than {margin - 1:.0%} (near-equal "
+        "integrators would otherwise swap between measurements). Users compare against the "
+        "fastest setting of the engine they would otherwise pick, hence both series. The "
+        f"fastest on `{case}` need not be at larger N: a fastest costing over {drop:g} times its "
+        "default's at some N is not run at larger N in that window (its rows say so). The "
+        "reference's candidates are all five integrators; `seed`, the blog's scheme, tests "
+        f"every pair of particles and counts only when it is the fastest valid one: {seed}."
     )
 
 

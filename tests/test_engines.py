@@ -33,12 +33,6 @@ RUNS = [
 # only when a pose is evaluated): their free-spin error is that truncation, gated against its
 # closed form in tests/test_drake_adapter.py.
 FREE_SPIN_ATOL = 1e-9
-# Rapier computes in float32 and its gyroscopic update scales omega by ~(1 + eps32) every
-# substep: its free-flight error grows as 1/dt (tumbling_box before the flip: 0.20, 0.42, 0.88
-# degrees at dt 0.004, 0.002, 0.001), so neither exactness nor an order in dt holds. Recorded
-# strictly; its float32 bounds are gated in tests/test_rapier_adapter.py (docs/engines/rapier.md).
-FLOAT32_FREE_FLIGHT = {("rapier", "tgs_soft")}
-FLOAT32_REASON = "float32, error grows as 1/dt (docs/engines/rapier.md)"
 POLYNOMIAL_ROTATION = {("reference", "rk4")} | {
     ("drake", i) for i in ("sap", "tamsi", "semi_explicit_euler", "rk2", "rk3")
 }
@@ -49,20 +43,49 @@ def _errors(traj, scene):
     return pose_errors(traj, exact_states(scene, times), scene)
 
 
-@pytest.mark.parametrize(("engine", "integrator"), RUNS)
-def test_free_spin_cube_is_exact(engine, integrator, request):
-    if (engine, integrator) in FLOAT32_FREE_FLIGHT:
-        request.applymarker(pytest.mark.xfail(strict=True, reason=FLOAT32_REASON))
+# PhysX's TGS solver lets a free spin's angular velocity drift (4.7e-4 of it in 1000 steps of
+# free_spin_cube, 0.29 degrees; PGS keeps it to float32 rounding), and its error on tumbling_box
+# grows as dt shrinks (11 degrees at dt 0.01, 22 at 0.001): docs/engines/physx.md.
+PHYSX_TGS = pytest.mark.xfail(
+    reason="PhysX TGS drifts a free spin (docs/engines/physx.md)", strict=True
+)
+# Rapier's gyroscopic update scales omega by ~(1 + eps32) every substep, even on a free spin
+# with no gyroscopic torque (0.20 degrees on free_spin_cube), and its error on tumbling_box
+# grows as 1/dt (0.20, 0.42, 0.88 degrees before the flip at dt 0.004, 0.002, 0.001); its
+# float32 bounds are gated in tests/test_rapier_adapter.py: docs/engines/rapier.md.
+RAPIER_GYRO_F32 = pytest.mark.xfail(
+    reason="Rapier's f32 gyroscopic update grows omega every substep (docs/engines/rapier.md)",
+    strict=True,
+)
+FREE_SPIN_FAILS = {("physx", "tgs"): PHYSX_TGS, ("rapier", "tgs_soft"): RAPIER_GYRO_F32}
+ORDER_FAILS = {("physx", "tgs"): PHYSX_TGS, ("rapier", "tgs_soft"): RAPIER_GYRO_F32}
+
+
+def _marked(fails: dict) -> list:
+    """RUNS with the marks of `fails` added to their runs."""
+    return [
+        pytest.param(*p.values, id=p.id, marks=[*p.marks, fails[p.values]])
+        if p.values in fails
+        else p
+        for p in RUNS
+    ]
+
+
+@pytest.mark.parametrize(("engine", "integrator"), _marked(FREE_SPIN_FAILS))
+def test_free_spin_cube_is_exact(engine, integrator):
     if (engine, integrator) in POLYNOMIAL_ROTATION:
         pytest.skip("rotates by a polynomial of exp: gated against its closed-form truncation")
     scene = CATALOG["free_spin_cube"]
-    errors = _errors(run(scene, engine, integrator), scene)
+    traj = run(scene, engine, integrator)
+    errors = _errors(traj, scene)
+    # a single-precision engine rounds its pose every step: at most an epsilon a step adds up
+    atol = max(FREE_SPIN_ATOL, traj.meta.steps * getattr(ENGINES[engine], "epsilon", 0.0))
     worst = errors.loc[errors["orientation_error_deg"].idxmax()]
-    assert np.radians(worst["orientation_error_deg"]) < FREE_SPIN_ATOL, (
+    assert np.radians(worst["orientation_error_deg"]) < atol, (
         f"free_spin_cube/{engine}/{integrator}: orientation off by "
         f"{worst['orientation_error_deg']:.3g} deg at t = {worst['t']:.2f} s"
     )
-    assert errors["position_error"].max() < FREE_SPIN_ATOL
+    assert errors["position_error"].max() < atol
 
 
 # The issue's gate for MuJoCo's RK4 at dt = 0.001 over the 10 s of tumbling_box.
@@ -110,10 +133,8 @@ def test_exact_integrator_stays_at_rounding_at_any_dt(dt):
     assert err < bound, f"tumbling_box/reference/exact/dt={dt}: {err:.3g} deg (bound {bound:.3g})"
 
 
-@pytest.mark.parametrize(("engine", "integrator"), RUNS)
-def test_tumbling_box_errors_shrink_at_the_integrators_order(engine, integrator, request):
-    if (engine, integrator) in FLOAT32_FREE_FLIGHT:
-        request.applymarker(pytest.mark.xfail(strict=True, reason=FLOAT32_REASON))
+@pytest.mark.parametrize(("engine", "integrator"), _marked(ORDER_FAILS))
+def test_tumbling_box_errors_shrink_at_the_integrators_order(engine, integrator):
     if (engine, integrator) in EXACT_FREE_FLIGHT:
         pytest.skip("closed-form rotation: no truncation error (test_exact_integrator_...)")
     scene = CATALOG["tumbling_box"]

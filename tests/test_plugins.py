@@ -18,7 +18,7 @@ from comparators.engine import left_out
 from comparators.sweep import LocalExecutor, plan, run_sweep
 from reports.cli import main
 
-BUILT_IN = {"dart", "drake", "mujoco", "pybullet", "reference"}
+BUILT_IN = {"dart", "drake", "mujoco", "physx", "pybullet", "reference"}
 
 
 def test_built_in_engines_are_registered_through_entry_points():
@@ -192,12 +192,12 @@ def test_left_out_lists_unavailable_engines_not_selected(monkeypatch):
     assert left_out([CATALOG["free_spin_cube"]], ["mujoco"]) == ["absent: pip install absent"]
 
 
-# A Python that cannot import pydrake or dartpy, as where the extras are not installed.
+# A Python that cannot import pydrake, dartpy or sapien, as where the extras are not installed.
 WITHOUT_EXTRAS = """
 import sys
 class Absent:
     def find_spec(self, name, path=None, target=None):
-        if name.split(".")[0] in ("pydrake", "dartpy"):
+        if name.split(".")[0] in ("pydrake", "dartpy", "sapien"):
             raise ImportError(f"No module named {name!r}")
 sys.meta_path.insert(0, Absent())
 from reports.cli import main
@@ -217,7 +217,7 @@ def test_an_engine_whose_package_is_absent_says_how_to_install_it(tmp_path):
 
     listed = rigidbench("engines")
     assert listed.returncode == 0, listed.stderr
-    for engine, extra in (("drake", "drake"), ("dart", "dart")):
+    for engine, extra in (("drake", "drake"), ("dart", "dart"), ("physx", "physx")):
         line = next(x for x in listed.stdout.splitlines() if f" {engine} " in x)
         assert "unavailable" in line and f"pip install 'rigidbench[{extra}]'" in line
     refused = rigidbench("run", "free_spin_cube", "--engine", "drake")
@@ -229,4 +229,4 @@ def test_an_engine_whose_package_is_absent_says_how_to_install_it(tmp_path):
     )
     assert bench.returncode == 0, bench.stderr
     left = [x for x in bench.stdout.splitlines() if x.startswith("left out:")]
-    assert [x.split(":")[1].strip() for x in left] == ["dart", "drake"]
+    assert [x.split(":")[1].strip() for x in left] == ["dart", "drake", "physx"]

@@ -239,8 +239,8 @@ def test_numbers_beyond_float32_are_unsupported():
     scene = CATALOG["free_spin_cube"]
     far = dataclasses.replace(scene.bodies[0], velocity=(1e39, 0.0, 0.0))
     reason = ENGINES["rapier"].unsupported(dataclasses.replace(scene, bodies=(far,)))
-    assert "velocity exceeds float32's range" in reason
+    assert "velocity include 1e+39" in reason
     tiny = dataclasses.replace(scene.bodies[0], angular_velocity=(1e-40, 0.0, 0.0))
     reason = ENGINES["rapier"].unsupported(dataclasses.replace(scene, bodies=(tiny,)))
-    assert "below float32's smallest normal" in reason
+    assert "angular velocity include 1e-40" in reason
     assert all(ENGINES["rapier"].unsupported(s) is None for s in CATALOG.values())

@@ -6,6 +6,7 @@ The sweep result is built here from a handful of real runs, without the sweep ma
 
 import dataclasses
 import platform
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -158,6 +159,32 @@ def test_errors_all_at_rounding_are_labelled_rounding():
     assert fits.at["exact", "note"].startswith("rounding")
     # one error at rounding among fitted ones is only left out of the fit
     assert fits.at["euler", "note"] == "" and fits.at["euler", "points"] == 3
+
+
+def test_a_single_precision_engine_is_fitted_above_its_precision_floor(monkeypatch):
+    """Errors that fall with dt and rise again below some dt: a float32 engine's rounding has
+    overtaken its truncation error there; the fit stops at the smallest error and says so. The
+    same errors from a float64 engine are fitted whole (a rise there is no precision floor)."""
+    monkeypatch.setitem(ENGINES, "single", SimpleNamespace(epsilon=float(np.finfo(np.float32).eps)))
+    monkeypatch.setitem(ENGINES, "double", SimpleNamespace())
+    runs = pd.DataFrame(
+        {
+            "case": "c",
+            "engine": ["single"] * 5 + ["double"] * 5,
+            "integrator": "x",
+            "dt": [0.02, 0.01, 0.005, 0.0025, 0.00125] * 2,
+            "verdict": "ok",
+            "orientation_error_deg": [8.0, 4.0, 2.0, 3.0, 5.0] * 2,
+            "position_error": np.nan,
+        }
+    )
+    fits = fit_orders(runs, {}).set_index("engine")
+    assert fits.at["single", "order"] == pytest.approx(1.0)
+    assert fits.at["single", "dt_min"] == 0.005 and fits.at["single", "points"] == 3
+    assert (
+        "precision floor: float32 errors stop falling below dt 0.005 s" in fits.at["single", "note"]
+    )
+    assert fits.at["double", "points"] == 5 and "precision" not in fits.at["double", "note"]
 
 
 def test_no_fit_with_fewer_than_three_points():
