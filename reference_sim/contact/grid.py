@@ -116,12 +116,12 @@ def _grid_pairs_into(radius, x, reach, cells, dims, order, cell_start, found, pa
 
 
 @compiled
-def sphere_pairs(radius, x, reach):
+def sphere_pairs(radius, x, reach, capacity):
     """`all_sphere_pairs`, found on a uniform grid: spheres are binned into cubic cells at least
     as wide as the largest interaction distance (`_bin_spheres`) and only spheres in
     neighbouring cells are tested, so the cost grows linearly with their number. Same result
     (tested), so the simulation is bit-equal either way. Without a bounded grid (NaN or infinite
-    coordinates) it tests every pair.
+    coordinates) it tests every pair. `capacity`: the pairs expected (more take a second pass).
     """
     nb = x.shape[0]
     dims = np.ones(3, dtype=np.int64)
@@ -138,7 +138,7 @@ def sphere_pairs(radius, x, reach):
     cell_start = np.zeros(n_cells + 1, dtype=np.int64)
     _sort_by_cell(keys, cell_start, order)
     found = np.empty(nb, dtype=np.int64)
-    pairs = np.empty((2 * nb + 16, 2), dtype=np.int64)
+    pairs = np.empty((capacity, 2), dtype=np.int64)
     n = _grid_pairs_into(radius, x, reach, cells, dims, order, cell_start, found, pairs)
     if n > pairs.shape[0]:
         pairs = np.empty((n, 2), dtype=np.int64)
@@ -150,4 +150,4 @@ def sphere_pairs(radius, x, reach):
 def grid_pairs(model, x, reach):
     """`all_pairs`, found on a uniform grid (`sphere_pairs` of the bodies' bounding spheres):
     the cost grows linearly with the number of bodies, the pairs are the same."""
-    return sphere_pairs(model.bound_radius, x, reach)
+    return sphere_pairs(model.bound_radius, x, reach, 2 * x.shape[0] + 16)
