@@ -72,9 +72,12 @@ SEED_GRID_LARGEST_REACH = 1e100
 
 @inlined
 def _collide_pair(model, pos, vel, i, j):
-    """The blog's collision of particles i and j, in place: if they overlap (and are not within
-    0.1 mm, the blog's guard), push them apart by mass ratio and give them the blog's
-    restitution impulse. Returns whether it did."""
+    """One pair of the blog's loop (`_collide_particles`), the same code: if particles i and j
+    overlap (and are not within 0.1 mm, the blog's guard), push them apart by mass ratio and
+    give them the blog's restitution impulse, in place. Returns whether it did. The loop keeps
+    its own copy, unchanged: calling this, even inlined, made seed_cube's collision phase about
+    8 % slower (4.5 against 4.1 us, the host loaded); tests/test_seed_grid.py checks the two
+    copies agree bit for bit."""
     e = model.restitution
     d = pos[i] - pos[j]
     r = np.sqrt(np.dot(d, d))
@@ -96,19 +99,28 @@ def _collide_pair(model, pos, vel, i, j):
 
 
 @compiled
-def _collide_particles_from(model, pos, vel, i0, j0):
-    """The blog's pair loop from pair (i0, j0) on: every pair i < j in order, each seeing the
-    corrections of those before it."""
-    n = pos.shape[0]
-    for i in range(i0, n):
-        for j in range(j0 if i == i0 else i + 1, n):
-            _collide_pair(model, pos, vel, i, j)
-
-
-@compiled
 def _collide_particles(model, pos, vel):
-    """The blog's pair loop, over all pairs: the reference the grid's pair search must equal."""
-    _collide_particles_from(model, pos, vel, 0, 1)
+    """The blog's pair loop over all pairs i < j in order, each seeing the corrections of those
+    before it: the reference the grid's pair search (`_collide_particles_grid`) equals."""
+    e = model.restitution
+    n = pos.shape[0]
+    for i in range(n):
+        for j in range(i + 1, n):
+            d = pos[i] - pos[j]
+            r = np.sqrt(np.dot(d, d))
+            reach = model.radius[i] + model.radius[j]
+            if r < reach and r >= 0.0001:
+                m1, m2 = model.particle_mass[i], model.particle_mass[j]
+                normal = d / r
+                overlap = reach - r
+                pos[i] += overlap * normal * (m2 / (m1 + m2))
+                pos[j] -= overlap * normal * (m1 / (m1 + m2))
+                # the blog uses the corrected positions and the radius sum for |x1 - x2|
+                d = pos[i] - pos[j]
+                dv1 = -(1 + e) * m2 / (m1 + m2) * np.dot(vel[i] - vel[j], d) * d / reach**2
+                dv2 = -(1 + e) * m1 / (m1 + m2) * np.dot(vel[j] - vel[i], -d) * (-d) / reach**2
+                vel[i] += dv1
+                vel[j] += dv2
 
 
 @inlined
