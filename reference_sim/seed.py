@@ -52,10 +52,10 @@ def quat_from_matrix(m):
 
 
 # Scenes of at least this many particles find the pairs on the grid; fewer are tested pair by
-# pair. The collision phase, all pairs / grid time, at a state 0.6 s into the run (2026-11-26,
-# AMD EPYC, 2 cores): one cube (8 particles) 0.84 to 1.58 over seed_cube, dropped_cube and
-# cube_rain_1, a tie within the noise; 16 particles 1.25, 32 1.9, 64 2.0, 800 11.6. So the
-# blog's own one-cube scenes keep its loop, and from two cubes on the grid is faster.
+# pair. The collision phase, all pairs / grid time, at the state 60 steps into the run
+# (2026-11-26, AMD EPYC, 2 cores, loaded): one cube (8 particles) 0.84 to 1.58 over seed_cube,
+# dropped_cube and cube_rain_1, a tie within the noise; 16 particles 1.25, 32 1.9, 64 2.0, 800
+# 11.6. So the blog's own one-cube scenes keep its loop, and from two cubes on the grid is faster.
 SEED_GRID_MIN_PARTICLES = 16
 # A particle may move this fraction of the largest reach R from where the pairs were found
 # before they are found again: pairs the grid leaves out are farther than their reach + 2 R, so
