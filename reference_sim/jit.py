@@ -1,4 +1,4 @@
-"""How the simulator is compiled: four numba decorators, all with numpy's division semantics.
+"""How the simulator is compiled: five numba decorators, all with numpy's division semantics.
 
 `compiled` functions may allocate arrays. `kernel` functions allocate nothing and are compiled
 without numba's reference counting: in a counted function every call that passes arrays (the
@@ -34,3 +34,6 @@ inlined_kernel = njit(
 # the step runs the same code without a call. A literal argument (a global constant) is typed
 # as its value and makes a signature of its own: pass such arguments as `np.int64(...)`.
 shared_kernel = njit(cache=True, _nrt=False, forceinline=True, error_model="numpy")
+# Counted (allocating) functions inlined by numba into each caller: the seed's pair collision,
+# run for every pair tested by several loops, where a call would count each array it is passed.
+inlined = njit(cache=True, inline="always", forceinline=False, error_model="numpy")

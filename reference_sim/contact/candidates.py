@@ -12,21 +12,22 @@ from reference_sim.vec3 import dot, row, sub
 
 
 @kernel
-def near(model, x, reach, a, b):
-    """Whether the bounding spheres of bodies a and b can meet within the step."""
+def near(radius, x, reach, a, b):
+    """Whether spheres a and b (centres `x`, radii `radius`: the bodies' bounding spheres, or
+    the seed's particles) can meet, each moving at most its `reach`."""
     d = sub(row(x, a), row(x, b))
-    apart = math.sqrt(dot(d, d)) - model.bound_radius[a] - model.bound_radius[b]
+    apart = math.sqrt(dot(d, d)) - radius[a] - radius[b]
     return not apart > reach[a] + reach[b]
 
 
 @kernel
-def all_pairs_into(model, x, reach, pairs):
-    """Every body pair a < b that can meet, tested pair by pair, in order, written to `pairs`
-    while it has room; returns how many there are."""
+def all_pairs_into(radius, x, reach, pairs):
+    """Every sphere pair a < b that can meet (`near`), tested pair by pair, in order, written
+    to `pairs` while it has room; returns how many there are."""
     n = 0
     for a in range(x.shape[0]):
         for b in range(a + 1, x.shape[0]):
-            if near(model, x, reach, a, b):
+            if near(radius, x, reach, a, b):
                 if n < pairs.shape[0]:
                     pairs[n, 0], pairs[n, 1] = a, b
                 n += 1
@@ -34,15 +35,21 @@ def all_pairs_into(model, x, reach, pairs):
 
 
 @compiled
+def all_sphere_pairs(radius, x, reach):
+    """(P, 2) sphere pairs a < b that can meet (`near`), sorted, tested pair by pair."""
+    pairs = np.empty((2 * x.shape[0] + 16, 2), dtype=np.int64)
+    n = all_pairs_into(radius, x, reach, pairs)
+    if n > pairs.shape[0]:
+        pairs = np.empty((n, 2), dtype=np.int64)
+        all_pairs_into(radius, x, reach, pairs)
+    return pairs[:n]
+
+
+@compiled
 def all_pairs(model, x, reach):
     """(P, 2) body pairs a < b whose bounding spheres can meet within the step (`reach`:
     `reach_into`), sorted, tested pair by pair."""
-    pairs = np.empty((2 * x.shape[0] + 16, 2), dtype=np.int64)
-    n = all_pairs_into(model, x, reach, pairs)
-    if n > pairs.shape[0]:
-        pairs = np.empty((n, 2), dtype=np.int64)
-        all_pairs_into(model, x, reach, pairs)
-    return pairs[:n]
+    return all_sphere_pairs(model.bound_radius, x, reach)
 
 
 @kernel
@@ -110,7 +117,7 @@ def find_candidates_into(model, x, v, dt, kick, buf):
     reach_into(model, v, buf.omega, dt, kick, buf.reach)
     n_pairs = buf.counts[COUNT_PAIRS]
     if n_pairs < 0:
-        n_pairs = all_pairs_into(model, x, buf.reach, buf.pairs)
+        n_pairs = all_pairs_into(model.bound_radius, x, buf.reach, buf.pairs)
         if n_pairs > buf.pairs.shape[0]:
             return -n_pairs
     k = _plane_candidates_into(model, x, buf.rot, buf.reach, buf.cands, buf.keys)

@@ -1,11 +1,14 @@
 """The broad phase of many bodies: close body pairs found on a uniform grid (a counting sort of
-the bodies into cells), the same pairs in the same order as testing every pair, in linear time."""
+the bodies into cells), the same pairs in the same order as testing every pair, in linear time.
+
+The grid bins spheres (centres, radii, reaches): the rigid integrators' bodies by their bounding
+spheres (`grid_pairs`), and the seed's particles (`sphere_pairs`, `reference_sim.seed`)."""
 
 import math
 
 import numpy as np
 
-from reference_sim.contact.candidates import all_pairs, near
+from reference_sim.contact.candidates import all_sphere_pairs, near
 from reference_sim.contact.settings import GRID_CELLS_PER_BODY
 from reference_sim.jit import compiled, kernel
 
@@ -20,15 +23,15 @@ def _extent(x, k):
 
 
 @kernel
-def _bin(model, x, reach, cells, dims, keys, max_cells):
-    """Each body's grid cell and its key (cells numbered along z, then y, then x), on cubic
+def _bin_spheres(radius, x, reach, cells, dims, keys, max_cells):
+    """Each sphere's grid cell and its key (cells numbered along z, then y, then x), on cubic
     cells as wide as the largest interaction distance, doubled until there are at most
     `max_cells`; returns the number of cells, or 0 if the grid would be unbounded (NaN or
     infinite coordinates)."""
     nb = x.shape[0]
     cell = 0.0
     for b in range(nb):
-        cell = max(cell, 2.0 * (model.bound_radius[b] + reach[b]))
+        cell = max(cell, 2.0 * (radius[b] + reach[b]))
     if not (cell > 0.0 and math.isfinite(cell)):
         return 0
     for k in range(3):
@@ -54,6 +57,12 @@ def _bin(model, x, reach, cells, dims, keys, max_cells):
 
 
 @kernel
+def _bin(model, x, reach, cells, dims, keys, max_cells):
+    """`_bin_spheres` of the bodies' bounding spheres."""
+    return _bin_spheres(model.bound_radius, x, reach, cells, dims, keys, max_cells)
+
+
+@kernel
 def _sort_by_cell(keys, cell_start, order):
     """Counting sort: the bodies of cell c are order[cell_start[c]:cell_start[c + 1]], in
     index order (`cell_start` zeroed, one longer than the number of cells)."""
@@ -70,7 +79,7 @@ def _sort_by_cell(keys, cell_start, order):
 
 
 @kernel
-def _grid_pairs_into(model, x, reach, cells, dims, order, cell_start, found, pairs):
+def _grid_pairs_into(radius, x, reach, cells, dims, order, cell_start, found, pairs):
     """The pairs of `all_pairs_into`, in the same order, testing only bodies in neighbouring
     grid cells (`cells`: each body's cell; the bodies of cell c are `order[cell_start[c]:
     cell_start[c + 1]]`). Cells are numbered along z first, so the three neighbouring cells of
@@ -91,7 +100,7 @@ def _grid_pairs_into(model, x, reach, cells, dims, order, cell_start, found, pai
                 column = (cx * dims[1] + cy) * dims[2]
                 for at_b in range(cell_start[column + z_lo], cell_start[column + z_hi + 1]):
                     b = order[at_b]
-                    if b > a and near(model, x, reach, a, b):
+                    if b > a and near(radius, x, reach, a, b):
                         # insertion keeps found[:m] sorted: pairs come out in index order
                         at = m
                         while at > 0 and found[at - 1] > b:
@@ -107,27 +116,38 @@ def _grid_pairs_into(model, x, reach, cells, dims, order, cell_start, found, pai
 
 
 @compiled
-def grid_pairs(model, x, reach):
-    """`all_pairs`, found on a uniform grid: bodies are binned into cubic cells at least as wide
-    as the largest interaction distance (`_bin`) and only bodies in neighbouring cells are
-    tested, so the cost grows linearly with the number of bodies. Same result (tested), so the
-    simulation is bit-equal either way. Without a bounded grid (NaN or infinite coordinates) it
-    tests every pair.
+def sphere_pairs(radius, x, reach, capacity):
+    """`all_sphere_pairs`, found on a uniform grid: spheres are binned into cubic cells at least
+    as wide as the largest interaction distance (`_bin_spheres`) and only spheres in
+    neighbouring cells are tested, so the cost grows linearly with their number. Same result
+    (tested), so the simulation is bit-equal either way. Without a bounded grid (NaN or infinite
+    coordinates) it tests every pair. `capacity`: the pairs expected (more take a second pass).
     """
     nb = x.shape[0]
     dims = np.ones(3, dtype=np.int64)
     cells = np.zeros((nb, 3), dtype=np.int64)
     keys = np.empty(nb, dtype=np.int64)
-    n_cells = 0 if nb == 0 else _bin(model, x, reach, cells, dims, keys, GRID_CELLS_PER_BODY * nb)
+    n_cells = (
+        0
+        if nb == 0
+        else _bin_spheres(radius, x, reach, cells, dims, keys, GRID_CELLS_PER_BODY * nb)
+    )
     if n_cells == 0:
-        return all_pairs(model, x, reach)
+        return all_sphere_pairs(radius, x, reach)
     order = np.empty(nb, dtype=np.int64)
     cell_start = np.zeros(n_cells + 1, dtype=np.int64)
     _sort_by_cell(keys, cell_start, order)
     found = np.empty(nb, dtype=np.int64)
-    pairs = np.empty((2 * nb + 16, 2), dtype=np.int64)
-    n = _grid_pairs_into(model, x, reach, cells, dims, order, cell_start, found, pairs)
+    pairs = np.empty((capacity, 2), dtype=np.int64)
+    n = _grid_pairs_into(radius, x, reach, cells, dims, order, cell_start, found, pairs)
     if n > pairs.shape[0]:
         pairs = np.empty((n, 2), dtype=np.int64)
-        _grid_pairs_into(model, x, reach, cells, dims, order, cell_start, found, pairs)
+        _grid_pairs_into(radius, x, reach, cells, dims, order, cell_start, found, pairs)
     return pairs[:n]
+
+
+@compiled
+def grid_pairs(model, x, reach):
+    """`all_pairs`, found on a uniform grid (`sphere_pairs` of the bodies' bounding spheres):
+    the cost grows linearly with the number of bodies, the pairs are the same."""
+    return sphere_pairs(model.bound_radius, x, reach, 2 * x.shape[0] + 16)
