@@ -107,8 +107,9 @@ def compile_stage(stage: str) -> None:
 
     "contact" compiles the contact impulses (`before_drift`, `after_drift` and what they
     call), "free" the rigid integrators' contact-free steps and the contact buffers, "seed"
-    the seed integrator: they share nothing and can compile in parallel processes. "rigid"
-    then loads their code from the cache and compiles only the step loops around it.
+    the seed integrator, whose pair search uses the grid "free" compiles (so it follows it in
+    one process of `COMPILE_GROUPS`, beside "contact" in the other). "rigid" then loads their
+    code from the cache and compiles only the step loops around it.
     """
     corners = np.array([[x, y, z, 1.0] for x in (0, 1) for y in (0, 1) for z in (0.2, 1.2)])
     model = build_model(
