@@ -17,7 +17,9 @@ COUNT_POST_WARM = 1  # contacts that pushed after the last drift (`post_keys`, `
 COUNT_PAIRS = 2  # rows of `pairs` the caller filled for this step; -1: found pair by pair here
 COUNT_KEPT_ROWS = 3  # rows below this hold their contact's gap, Jacobian and masses at this pose
 COUNT_STANDBY = 4  # candidates left on standby (`standby`)
-N_COUNTS = 5
+COUNT_CLOCK = 5  # contact updates so far (`seen`, `stamp`)
+COUNT_SWEEP = 6  # sweeps so far (`mark`)
+N_COUNTS = 7
 
 # `ContactBuffers.solver`, the contact solver's statistics summed over a run:
 STAT_SOLVES = 0
@@ -68,6 +70,10 @@ class ContactBuffers(NamedTuple):
       rates: (2,) at PRE_DRIFT and POST_DRIFT, the rate of the last extrapolation that ended
         its solve (0: none).
       standby: (C,) candidates left on standby before the drift (`rows.assemble`).
+      seen: (C,) the clock (COUNT_CLOCK) at each contact's last update; stamp: (B,) at the last
+        update that changed the body's velocity by much (`gauss_seidel._sweep`).
+      mark: (B,) the sweep (COUNT_SWEEP) that last touched each body; touched: (B,) the bodies
+        the current sweep has touched, in order (their velocities at its start in `bodies`).
     """
 
     rot: np.ndarray
@@ -110,6 +116,10 @@ class ContactBuffers(NamedTuple):
     pose: np.ndarray
     rates: np.ndarray
     standby: np.ndarray
+    seen: np.ndarray
+    stamp: np.ndarray
+    mark: np.ndarray
+    touched: np.ndarray
 
 
 @compiled
@@ -159,6 +169,10 @@ def contact_buffers(n_bodies, capacity, pair_capacity):
         pose=np.zeros((n_bodies, 7)),
         rates=np.zeros(2),
         standby=np.zeros(c, dtype=np.bool_),
+        seen=np.zeros(c, dtype=np.int64),
+        stamp=np.zeros(n_bodies, dtype=np.int64),
+        mark=np.zeros(n_bodies, dtype=np.int64),
+        touched=np.zeros(n_bodies, dtype=np.int64),
     )
 
 

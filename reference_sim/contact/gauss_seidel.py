@@ -4,7 +4,13 @@ rate of convergence."""
 
 import math
 
-from reference_sim.contact.buffers import PRE_DRIFT, STAT_EXTRAPOLATIONS, STAT_SUBSPACE_STEPS
+from reference_sim.contact.buffers import (
+    COUNT_CLOCK,
+    COUNT_SWEEP,
+    PRE_DRIFT,
+    STAT_EXTRAPOLATIONS,
+    STAT_SUBSPACE_STEPS,
+)
 from reference_sim.contact.impulses import push, row_speed, set_impulses
 from reference_sim.contact.rows import wake
 from reference_sim.contact.settings import (
@@ -14,6 +20,8 @@ from reference_sim.contact.settings import (
     CYCLE_PERIODS,
     CYCLE_START,
     MAX_ITERATIONS,
+    QUIET_FRACTION,
+    QUIET_MIN_BODIES,
     RATE_AGREEMENT,
     RATE_MAX,
     RATE_SWEEPS,
@@ -106,11 +114,12 @@ def update(model, buf, k, v, L, change):
 
 
 @kernel
-def _moved(model, v, omega, bodies):
-    """The largest velocity change of a body since `bodies` (v, omega) was taken: |dv| + bound
-    radius |d omega|, its fastest surface point's."""
+def _moved(model, v, omega, bodies, touched, n):
+    """The largest velocity change of the first n bodies of `touched` since `bodies` (v, omega)
+    was taken: |dv| + bound radius |d omega|, its fastest surface point's."""
     moved = 0.0
-    for b in range(v.shape[0]):
+    for m in range(n):
+        b = touched[m]
         dv = 0.0
         dw = 0.0
         for i in range(3):
@@ -118,6 +127,19 @@ def _moved(model, v, omega, bodies):
             dw = max(dw, abs(omega[b, i] - bodies[b, 3 + i]))
         moved = max(moved, dv + model.bound_radius[b] * dw)
     return moved
+
+
+@kernel
+def _touch(buf, v, body, sweep, n):
+    """Body `body` about to be changed by an update of sweep `sweep`: if it is the first, keep
+    its velocities (`buf.bodies`) and list it in `buf.touched`; returns the count listed."""
+    if body >= 0 and buf.mark[body] != sweep:
+        buf.mark[body] = sweep
+        for i in range(3):
+            buf.bodies[body, i], buf.bodies[body, 3 + i] = v[body, i], buf.omega[body, i]
+        buf.touched[n] = body
+        n += 1
+    return n
 
 
 @kernel
@@ -207,12 +229,9 @@ def _list_busy(nc, buf):
 
 
 @inlined_kernel
-def _sweep_start(buf, v, n_busy, armed):
-    """Keep the bodies' velocities (`buf.bodies`) a sweep starts from, and if `armed` (an
-    extrapolation may follow it) the impulses of its busy contacts (`buf.lam_sweep`)."""
-    for b in range(v.shape[0]):
-        for i in range(3):
-            buf.bodies[b, i], buf.bodies[b, 3 + i] = v[b, i], buf.omega[b, i]
+def _sweep_start(buf, n_busy, armed):
+    """If `armed` (an extrapolation may follow the sweep), keep the impulses of its busy
+    contacts (`buf.lam_sweep`)."""
     if armed:
         for m in range(n_busy):
             k = buf.busy[m]
@@ -221,27 +240,49 @@ def _sweep_start(buf, v, n_busy, armed):
 
 
 @inlined_kernel
-def _sweep(model, buf, v, L, n_busy, n_idle, tolerance, sticking_seen):
+def _sweep(model, buf, v, L, n_busy, n_idle, tolerance, sticking_seen, epoch, quiet):
     """One sweep: the busy contacts, then the idle ones if the busy ones pass the stopping test
-    (one loop: `update` is inlined once). Returns the largest speed an update changed, the
-    largest body velocity change (`_moved`), whether the sweep converged, whether it visited
-    the idle contacts, and `sticking_seen`, or-ed with whether some contact stuck."""
-    order = buf.busy
+    (one loop: `update` is inlined once). A contact whose last update (after `epoch`, on the
+    clock COUNT_CLOCK) changed a speed by less than `quiet` and whose bodies no update has
+    changed by that much since is quiet, and skipped: an update would change it little more
+    than it did. Returns the largest speed an update changed, the largest body velocity change
+    (`_moved`), whether the sweep converged, whether it visited the idle contacts,
+    `sticking_seen`, or-ed with whether some contact stuck, and whether it skipped quiet
+    contacts (a convergence then needs a sweep of them all to confirm it, `iterate`)."""
+    order, seen, stamp = buf.busy, buf.seen, buf.stamp
+    quiet_ok = v.shape[0] >= QUIET_MIN_BODIES  # one body: skipping would only reorder
     end = order.shape[0] - 1
     change = 0.0
-    rejoin, m, stop = False, 0, n_busy
+    clock = buf.counts[COUNT_CLOCK]
+    sweep = buf.counts[COUNT_SWEEP] + 1
+    buf.counts[COUNT_SWEEP] = sweep
+    rejoin, m, stop, skipped, n_touched = False, 0, n_busy, False, 0
     while True:
         while m < stop:
             k = order[m] if m < n_busy else order[end - (m - n_busy)]
-            change, sticks = update(model, buf, k, v, L, change)
-            sticking_seen = sticking_seen or sticks
             m += 1
-        moved = _moved(model, v, buf.omega, buf.bodies)
+            a, b, last = buf.cands[k, 0], buf.cands[k, 2], seen[k]
+            if quiet_ok and last > epoch and stamp[a] < last and (b < 0 or stamp[b] < last):
+                skipped = True
+                continue
+            n_touched = _touch(buf, v, a, sweep, n_touched)
+            n_touched = _touch(buf, v, b, sweep, n_touched)
+            own, sticks = update(model, buf, k, v, L, 0.0)
+            change = max(change, own)
+            sticking_seen = sticking_seen or sticks
+            clock += 1
+            seen[k] = clock
+            if own >= quiet:  # its bodies moved: every contact on them is due
+                stamp[a] = clock
+                if b >= 0:
+                    stamp[b] = clock
+        moved = _moved(model, v, buf.omega, buf.bodies, buf.touched, n_touched)
         converged = change < tolerance or moved < tolerance
         if rejoin or not converged or n_idle == 0:
             break
         rejoin, stop = True, n_busy + n_idle
-    return change, moved, converged, rejoin, sticking_seen
+    buf.counts[COUNT_CLOCK] = clock
+    return change, moved, converged, rejoin, sticking_seen, skipped
 
 
 @inlined_kernel
@@ -293,12 +334,18 @@ def iterate(
     progress, since = math.inf, 0  # the velocity change at its last fall (STALL_PROGRESS)
     last, rate, steady, armed = math.inf, 0.0, 0, False
     trusted, tried = buf.rates[slot], 0.0
+    epoch = buf.counts[COUNT_CLOCK]  # no contact is quiet before its first update
+    change = math.inf
     for it in range(limit):
-        _sweep_start(buf, v, n_busy, armed)
+        _sweep_start(buf, n_busy, armed)
         stuck = model.friction == 0.0  # a subspace step needs a sticking contact
-        change, moved, converged, rejoin, stuck = _sweep(
-            model, buf, v, L, n_busy, n_idle, tolerance, stuck
+        quiet = max(tolerance, QUIET_FRACTION * change)  # of the sweep before
+        change, moved, converged, rejoin, stuck, skipped = _sweep(
+            model, buf, v, L, n_busy, n_idle, tolerance, stuck, epoch, quiet
         )
+        if converged and skipped:  # confirmed by a sweep of every contact
+            epoch = buf.counts[COUNT_CLOCK]
+            continue
         if converged:
             awake = wake(model, x, nc, dt, buf, v, n_busy)
             if awake == n_busy:
@@ -306,6 +353,7 @@ def iterate(
                     buf.rates[slot] = tried
                 return it + 1, True
             n_busy = awake  # sweeps go on with the woken contacts
+            epoch = buf.counts[COUNT_CLOCK]
             last, rate, steady, armed, tried = math.inf, 0.0, 0, False, 0.0
             continue
         if tried > 0.0:  # it did not: no rate is trusted
@@ -323,4 +371,6 @@ def iterate(
         n_busy, n_idle = _regroup(buf, n_busy, n_idle, idle_margin * change, rejoin)
         if stuck and first <= it + 1 < first + SUBSPACE_STEPS:
             buf.solver[STAT_SUBSPACE_STEPS] += subspace_step(model, nc, buf, v, L)
+        if last == math.inf or stuck and first <= it + 1 < first + SUBSPACE_STEPS:
+            epoch = buf.counts[COUNT_CLOCK]  # impulses changed outside the updates
     return limit, False

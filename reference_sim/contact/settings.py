@@ -72,6 +72,12 @@ GRID_CELLS_PER_BODY = 8
 # A contact that does not push and whose normal speed exceeds its target by more than this many
 # times the last sweep's largest speed change is idle: sweeps skip it until the rest converge.
 IDLE_MARGIN = 10.0
+# A contact is quiet, and sweeps skip it, while its last update changed a speed by less than
+# this fraction of the last sweep's largest change (or the tolerance) and no update has
+# changed one of its bodies by that much since; a sweep of every contact confirms convergence.
+QUIET_FRACTION = 0.1
+# Scenes of fewer bodies than this skip no contact: all of one body's contacts share it.
+QUIET_MIN_BODIES = 2
 
 
 @kernel
