@@ -268,9 +268,9 @@ def _record_state(model, x, q, v, L, out):
 @compiled
 def run_rigid(model, integrator, x, q, v, L, dt, n_steps, stride):
     """Step n_steps times in place; return the sampled steps (S,), samples (S, B, 13): x, q, v,
-    omega per body, and the contact solver's statistics (5,): solves, Gauss-Seidel sweeps,
-    solves stopped unconverged (at MAX_ITERATIONS, stalled or cycling), subspace steps and
-    extrapolations (zeros without contact).
+    omega per body, and the contact solver's statistics (`buffers.STAT_*`): solves,
+    Gauss-Seidel sweeps, solves stopped unconverged (at MAX_ITERATIONS, stalled or cycling),
+    subspace steps, extrapolations and updates skipped as quiet (zeros without contact).
 
     Samples are taken at step 0, every `stride` steps, and at the last step.
     """

@@ -37,7 +37,7 @@ class SimResult(NamedTuple):
         (seed only: its body deforms, so its pose does not place its particles).
       solver: the contact solver's statistics (rigid integrators only): solves, Gauss-Seidel
         sweeps, solves stopped unconverged (at MAX_ITERATIONS, stalled or cycling), subspace
-        steps and extrapolations, over the run.
+        steps, extrapolations and updates skipped as quiet, over the run.
       state: the final state.  compile_s: time spent compiling or loading compiled code (s).
       wall_s: time spent stepping alone (s).
     """

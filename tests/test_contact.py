@@ -29,6 +29,7 @@ from reference_sim.contact.buffers import (
     COUNT_PRE_WARM,
     PRE_DRIFT,
     STAT_EXTRAPOLATIONS,
+    STAT_QUIET,
     STAT_SOLVES,
     STAT_SWEEPS,
     STAT_UNCONVERGED,
@@ -357,8 +358,9 @@ class _RainStep(NamedTuple):
     counted: np.ndarray
 
 
-def _first_rain_step_counting(counter):
-    """The first step of `cube_rain_8` in which the solver statistic `counter` grows."""
+def _first_rain_step_counting(counter, converged=False):
+    """The first step of `cube_rain_8` in which the solver statistic `counter` grows (and, if
+    `converged`, every solve converges)."""
     scene = CATALOG["cube_rain_8"]
     model = model_from_scene(scene)
     x, q, v, L = initial_state(model, scene)
@@ -367,9 +369,10 @@ def _first_rain_step_counting(counter):
     for _ in range(scene.steps(scene.dt, scene.duration)):
         before = [a.copy() for a in (x, q, v, L)], buffers.ContactBuffers(*(a.copy() for a in buf))
         assert _rain_step(model, (x, q, v, L), buf) == 0
-        if buf.solver[counter] > before[1].solver[counter]:
+        counted = buf.solver - before[1].solver
+        if counted[counter] > 0 and not (converged and counted[STAT_UNCONVERGED] > 0):
             after = [a.copy() for a in (x, q, v, L)]
-            return _RainStep(model, *before, after, buf.solver - before[1].solver)
+            return _RainStep(model, *before, after, counted)
     pytest.fail(f"no step counted solver statistic {counter}")
 
 
@@ -390,6 +393,7 @@ def _python_solves(monkeypatch, **changed):
         for module in users:
             monkeypatch.setattr(module, name, value)
     monkeypatch.setattr(gauss_seidel, "_follow_rate", gauss_seidel._follow_rate.py_func)
+    monkeypatch.setattr(gauss_seidel, "_sweep", gauss_seidel._sweep.py_func)
     monkeypatch.setattr(contact_step, "iterate", gauss_seidel.iterate.py_func)
     monkeypatch.setattr(contact_step, "solve", contact_step.solve.py_func)
     for name in ("before_drift", "after_drift"):
@@ -470,6 +474,24 @@ def test_an_extrapolated_solve_ends_where_the_sweeps_alone_would(monkeypatch):
             for s in (step.after, step.state)
         )
         np.testing.assert_allclose(w, w_plain, rtol=0, atol=tolerance)
+
+
+def test_skipping_quiet_contacts_ends_where_sweeps_of_every_contact_would(monkeypatch):
+    """`cube_rain_8`'s first step whose solves skip quiet contacts and converge, run again from
+    the same state skipping none (the kernels' Python code, QUIET_MIN_BODIES out of reach):
+    both converge, to the same velocities within SAME_MOTION_TOLERANCES solver tolerances."""
+    step = _first_rain_step_counting(STAT_QUIET, converged=True)
+    every = _rerun_in_python(monkeypatch, step, QUIET_MIN_BODIES=10**9)
+    assert every[STAT_QUIET] == 0 and every[STAT_UNCONVERGED] == 0
+    tolerance = SAME_MOTION_TOLERANCES * settings.solver_tolerance(CATALOG["cube_rain_8"].dt)
+    np.testing.assert_allclose(step.after[2], step.state[2], rtol=0, atol=tolerance)
+    model = step.model
+    for b in range(len(step.state[2])):
+        w, w_every = (
+            model.bound_radius[b] * np.array(frames.world_omega(model, s[1][b], s[3][b], b))
+            for s in (step.after, step.state)
+        )
+        np.testing.assert_allclose(w, w_every, rtol=0, atol=tolerance)
 
 
 def test_a_trusted_rate_extrapolates_sooner_to_the_same_motion():

@@ -27,7 +27,8 @@ STAT_SWEEPS = 1  # Gauss-Seidel sweeps
 STAT_UNCONVERGED = 2  # solves stopped at MAX_ITERATIONS, stalled or cycling
 STAT_SUBSPACE_STEPS = 3
 STAT_EXTRAPOLATIONS = 4
-SOLVER_STATISTICS = 5
+STAT_QUIET = 5  # updates skipped as quiet (`gauss_seidel._sweep`)
+SOLVER_STATISTICS = 6
 
 # `ContactBuffers.rates` and the solves' `slot`: the solve before the drift and the one after.
 PRE_DRIFT = 0

@@ -9,6 +9,7 @@ from reference_sim.contact.buffers import (
     COUNT_SWEEP,
     PRE_DRIFT,
     STAT_EXTRAPOLATIONS,
+    STAT_QUIET,
     STAT_SUBSPACE_STEPS,
 )
 from reference_sim.contact.impulses import push, row_speed, set_impulses
@@ -264,6 +265,7 @@ def _sweep(model, buf, v, L, n_busy, n_idle, tolerance, sticking_seen, epoch, qu
             a, b, last = buf.cands[k, 0], buf.cands[k, 2], seen[k]
             if quiet_ok and last > epoch and stamp[a] < last and (b < 0 or stamp[b] < last):
                 skipped = True
+                buf.solver[STAT_QUIET] += 1
                 continue
             n_touched = _touch(buf, v, a, sweep, n_touched)
             n_touched = _touch(buf, v, b, sweep, n_touched)
