@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scenes import head_on, initial_state
 
-from cases import CATALOG, Body, Contact, Scene
+from cases import CATALOG, Body, Contact, Scene, resolve_case
 from cases.builders import box_corners, floor
 from cases.exact import exact_states
 from comparators import run
@@ -358,10 +358,9 @@ class _RainStep(NamedTuple):
     counted: np.ndarray
 
 
-def _first_rain_step_counting(counter, converged=False):
-    """The first step of `cube_rain_8` in which the solver statistic `counter` grows (and, if
-    `converged`, every solve converges)."""
-    scene = CATALOG["cube_rain_8"]
+def _first_rain_step_counting(counter, converged=False, scene=CATALOG["cube_rain_8"]):
+    """The first step of `scene` (a `cube_rain_N`) in which the solver statistic `counter`
+    grows (and, if `converged`, every solve converges)."""
     model = model_from_scene(scene)
     x, q, v, L = initial_state(model, scene)
     nb = len(scene.bodies)
@@ -377,8 +376,8 @@ def _first_rain_step_counting(counter, converged=False):
 
 
 def _rain_step(model, state, buf, step=rigid_step):
-    """One `euler` step of `cube_rain_8` at its dt, in place (`step`: `rigid_step` or its
-    Python code)."""
+    """One `euler` step of `cube_rain_N` at the family's dt, in place (`step`: `rigid_step` or
+    its Python code)."""
     dt = CATALOG["cube_rain_8"].dt
     threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * dt
     return step(model, INTEGRATOR_CODES["euler"], *state, dt, threshold, buf)
@@ -477,10 +476,12 @@ def test_an_extrapolated_solve_ends_where_the_sweeps_alone_would(monkeypatch):
 
 
 def test_skipping_quiet_contacts_ends_where_sweeps_of_every_contact_would(monkeypatch):
-    """`cube_rain_8`'s first step whose solves skip quiet contacts and converge, run again from
-    the same state skipping none (the kernels' Python code, QUIET_MIN_BODIES out of reach):
-    both converge, to the same velocities within SAME_MOTION_TOLERANCES solver tolerances."""
-    step = _first_rain_step_counting(STAT_QUIET, converged=True)
+    """`cube_rain_16`'s first step whose solves skip quiet contacts and converge, run again
+    from the same state skipping none (the kernels' Python code, QUIET_MIN_BODIES out of
+    reach): both converge, to the same velocities within SAME_MOTION_TOLERANCES solver
+    tolerances."""
+    assert settings.QUIET_MIN_BODIES <= 16
+    step = _first_rain_step_counting(STAT_QUIET, True, resolve_case("cube_rain_16"))
     every = _rerun_in_python(monkeypatch, step, QUIET_MIN_BODIES=10**9)
     assert every[STAT_QUIET] == 0 and every[STAT_UNCONVERGED] == 0
     tolerance = SAME_MOTION_TOLERANCES * settings.solver_tolerance(CATALOG["cube_rain_8"].dt)
