@@ -91,10 +91,10 @@ def update(model, buf, k, v, L, change):
     if model.friction == 0.0 or new == 0.0 and lam[k, 1] == 0.0 and lam[k, 2] == 0.0:
         return change, False
     # friction: the impulse that stops the sliding if it fits in the Coulomb disc; else
-    # mu P_n against the sliding velocity this contact's own friction leaves (maximum
-    # dissipation). Clipping the stopping impulse instead would aim the friction along
-    # K_t^-1 u, off the sliding direction whenever K_t is anisotropic: a sliding cube
-    # would yaw and decelerate by less than mu g.
+    # mu P_n against the sliding velocity the contact would have without its own friction
+    # (docs/contact-solver.md compares it with maximum dissipation). Clipping the stopping
+    # impulse instead would aim the friction along K_t^-1 u, off the sliding direction
+    # whenever K_t is anisotropic: a sliding cube would yaw and decelerate by less than mu g.
     g1 = row_speed(tangent1, a, b, v, omega)
     g2 = row_speed(tangent2, a, b, v, omega)
     g1 -= kt[k, 0] * lam[k, 1] + kt[k, 1] * lam[k, 2]
