@@ -454,6 +454,21 @@ def test_the_cycle_rule_flags_a_repeating_velocity_change_and_not_a_shrinking_on
 SAME_MOTION_TOLERANCES = 50
 
 
+def _assert_same_motion(step):
+    """The bodies' velocities after `step` (`step.after`) and after its rerun (`step.state`)
+    agree within SAME_MOTION_TOLERANCES solver tolerances, turning at the speed of each body's
+    farthest surface point."""
+    model = step.model
+    tolerance = SAME_MOTION_TOLERANCES * settings.solver_tolerance(CATALOG["cube_rain_8"].dt)
+    np.testing.assert_allclose(step.after[2], step.state[2], rtol=0, atol=tolerance)
+    for b in range(len(step.state[2])):
+        w, w_rerun = (
+            model.bound_radius[b] * np.array(frames.world_omega(model, s[1][b], s[3][b], b))
+            for s in (step.after, step.state)
+        )
+        np.testing.assert_allclose(w, w_rerun, rtol=0, atol=tolerance)
+
+
 def test_an_extrapolated_solve_ends_where_the_sweeps_alone_would(monkeypatch):
     """`cube_rain_8`'s first step with an extrapolation (`gauss_seidel.extrapolate`), run again
     from the same state without extrapolating (the kernels' Python code, RATE_MAX 0): both
@@ -464,15 +479,7 @@ def test_an_extrapolated_solve_ends_where_the_sweeps_alone_would(monkeypatch):
     plain = _rerun_in_python(monkeypatch, step, RATE_MAX=0.0)
     assert plain[STAT_EXTRAPOLATIONS] == 0 and plain[STAT_UNCONVERGED] == 0
     assert step.counted[STAT_SWEEPS] < plain[STAT_SWEEPS]
-    model, v = step.model, step.state[2]
-    tolerance = SAME_MOTION_TOLERANCES * settings.solver_tolerance(CATALOG["cube_rain_8"].dt)
-    np.testing.assert_allclose(step.after[2], v, rtol=0, atol=tolerance)
-    for b in range(len(v)):  # turning, at the speed of the body's farthest surface point
-        w, w_plain = (
-            model.bound_radius[b] * np.array(frames.world_omega(model, s[1][b], s[3][b], b))
-            for s in (step.after, step.state)
-        )
-        np.testing.assert_allclose(w, w_plain, rtol=0, atol=tolerance)
+    _assert_same_motion(step)
 
 
 def test_skipping_quiet_contacts_ends_where_sweeps_of_every_contact_would(monkeypatch):
@@ -484,15 +491,7 @@ def test_skipping_quiet_contacts_ends_where_sweeps_of_every_contact_would(monkey
     step = _first_rain_step_counting(STAT_QUIET, True, resolve_case("cube_rain_16"))
     every = _rerun_in_python(monkeypatch, step, QUIET_MIN_BODIES=10**9)
     assert every[STAT_QUIET] == 0 and every[STAT_UNCONVERGED] == 0
-    tolerance = SAME_MOTION_TOLERANCES * settings.solver_tolerance(CATALOG["cube_rain_8"].dt)
-    np.testing.assert_allclose(step.after[2], step.state[2], rtol=0, atol=tolerance)
-    model = step.model
-    for b in range(len(step.state[2])):
-        w, w_every = (
-            model.bound_radius[b] * np.array(frames.world_omega(model, s[1][b], s[3][b], b))
-            for s in (step.after, step.state)
-        )
-        np.testing.assert_allclose(w, w_every, rtol=0, atol=tolerance)
+    _assert_same_motion(step)
 
 
 def test_a_trusted_rate_extrapolates_sooner_to_the_same_motion():

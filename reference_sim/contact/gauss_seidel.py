@@ -251,7 +251,7 @@ def _sweep(model, buf, v, L, n_busy, n_idle, tolerance, sticking_seen, epoch, qu
     `sticking_seen`, or-ed with whether some contact stuck, and whether it skipped quiet
     contacts (a convergence then needs a sweep of them all to confirm it, `iterate`)."""
     order, seen, stamp = buf.busy, buf.seen, buf.stamp
-    quiet_ok = v.shape[0] >= QUIET_MIN_BODIES  # one body: skipping would only reorder
+    quiet_ok = v.shape[0] >= QUIET_MIN_BODIES
     end = order.shape[0] - 1
     change = 0.0
     clock = buf.counts[COUNT_CLOCK]
@@ -337,7 +337,7 @@ def iterate(
     last, rate, steady, armed = math.inf, 0.0, 0, False
     trusted, tried = buf.rates[slot], 0.0
     epoch = buf.counts[COUNT_CLOCK]  # no contact is quiet before its first update
-    change = math.inf
+    change = 0.0  # the first sweep's quiet threshold is the tolerance
     for it in range(limit):
         _sweep_start(buf, n_busy, armed)
         stuck = model.friction == 0.0  # a subspace step needs a sticking contact
