@@ -27,7 +27,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from cases.scene import Scene
-from comparators.harness import RunTimer, sample_steps
+from comparators.harness import RunTimer, check_run_call, sample_steps
 from comparators.parity import body_readback
 from comparators.trajectory import Trajectory, package_versions
 from rigidmath.quaternion import quats_from_rotvecs
@@ -333,10 +333,7 @@ def run_dart(
 ) -> Trajectory:
     """Run `scene` in a new DART world; `integrator` is the contact solver's name (SOLVERS).
     `sleeping=True` keeps DART's default deactivation (for the doc's measurement only)."""
-    if dart is None:
-        raise RuntimeError(f"engine 'dart' is unavailable: {UNAVAILABLE}")
-    if integrator not in SOLVERS:
-        raise ValueError(f"unknown integrator {integrator!r}: expected one of {tuple(SOLVERS)}")
+    check_run_call("dart", UNAVAILABLE, integrator, SOLVERS)
     timer = RunTimer(scene, "dart", integrator, dt, duration)
     sampled = sample_steps(timer.n_steps, timer.stride)
     with timer.setup():

@@ -62,6 +62,15 @@ def outside_float32(scene: Scene) -> str | None:
     return None
 
 
+def check_run_call(engine: str, unavailable: str | None, integrator: str, integrators) -> None:
+    """What an adapter's run function checks first: its engine imported (`unavailable`, the
+    reason if not) and `integrator` one of `integrators`."""
+    if unavailable is not None:
+        raise RuntimeError(f"engine {engine!r} is unavailable: {unavailable}")
+    if integrator not in integrators:
+        raise ValueError(f"unknown integrator {integrator!r}: expected one of {tuple(integrators)}")
+
+
 def sample_steps(n_steps: int, stride: int) -> np.ndarray:
     """The step indices every engine samples: 0, every `stride` steps, and the last one."""
     steps = np.arange(0, n_steps + 1, stride)

@@ -24,7 +24,7 @@ import warnings
 import numpy as np
 
 from cases.scene import Scene
-from comparators.harness import RunTimer, outside_float32, sample_steps
+from comparators.harness import RunTimer, check_run_call, outside_float32, sample_steps
 from comparators.parity import body_readback
 from comparators.trajectory import Trajectory, package_versions
 from rigidmath.inertia import principal_frame
@@ -290,10 +290,7 @@ def run_physx(
     settings: PhysxSettings = DEFAULT_SETTINGS,
 ) -> Trajectory:
     """Run `scene` in a fresh CPU PhysX system; `integrator` is "tgs" or "pgs"."""
-    if physx is None:
-        raise RuntimeError(f"engine 'physx' is unavailable: {UNAVAILABLE}")
-    if integrator not in SOLVERS:
-        raise ValueError(f"unknown integrator {integrator!r}: expected one of {tuple(SOLVERS)}")
+    check_run_call("physx", UNAVAILABLE, integrator, SOLVERS)
     timer = RunTimer(scene, "physx", integrator, dt, duration)
     sampled = sample_steps(timer.n_steps, timer.stride)
     with timer.setup():

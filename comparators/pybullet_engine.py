@@ -25,7 +25,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from cases.scene import Scene
-from comparators.harness import RunTimer, sample_steps
+from comparators.harness import RunTimer, check_run_call, sample_steps
 from comparators.parity import body_readback
 from comparators.trajectory import Trajectory, package_versions
 from rigidmath.inertia import principal_frame
@@ -306,10 +306,7 @@ def run_pybullet(
     settings: PybulletSettings = DEFAULT_SETTINGS,
 ) -> Trajectory:
     """Run `scene` in a fresh DIRECT client; `integrator` is "maximal" or "multibody"."""
-    if p is None:
-        raise RuntimeError(f"engine 'pybullet' is unavailable: {UNAVAILABLE}")
-    if integrator not in BODY_TYPES:
-        raise ValueError(f"unknown integrator {integrator!r}: expected one of {tuple(BODY_TYPES)}")
+    check_run_call("pybullet", UNAVAILABLE, integrator, BODY_TYPES)
     params = settings.engine_parameters(dt, scene.gravity)
     timer = RunTimer(scene, "pybullet", integrator, dt, duration)
     sampled = sample_steps(timer.n_steps, timer.stride)

@@ -21,7 +21,7 @@ import dataclasses
 import numpy as np
 
 from cases.scene import Scene
-from comparators.harness import RunTimer, outside_float32, sample_steps
+from comparators.harness import RunTimer, check_run_call, outside_float32, sample_steps
 from comparators.parity import body_readback
 from comparators.trajectory import Trajectory, package_versions
 from rigidmath.inertia import principal_frame
@@ -304,12 +304,7 @@ def run_rapier(
     settings: RapierSettings = DEFAULT_SETTINGS,
 ) -> Trajectory:
     """Run `scene` in a fresh Rapier world; `integrator` is "tgs_soft"."""
-    if r is None:
-        raise RuntimeError(f"engine 'rapier' is unavailable: {UNAVAILABLE}")
-    if integrator not in TIME_STEPPING:
-        raise ValueError(
-            f"unknown integrator {integrator!r}: expected one of {tuple(TIME_STEPPING)}"
-        )
+    check_run_call("rapier", UNAVAILABLE, integrator, TIME_STEPPING)
     timer = RunTimer(scene, "rapier", integrator, dt, duration)
     sampled = sample_steps(timer.n_steps, timer.stride)
     with timer.setup():
