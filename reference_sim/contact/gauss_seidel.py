@@ -371,8 +371,9 @@ def iterate(
             model, buf, n_busy, v, L, moved, last, rate, steady, armed, trusted, tried
         )
         n_busy, n_idle = _regroup(buf, n_busy, n_idle, idle_margin * change, rejoin)
-        if stuck and first <= it + 1 < first + SUBSPACE_STEPS:
+        subspace = stuck and first <= it + 1 < first + SUBSPACE_STEPS
+        if subspace:
             buf.solver[STAT_SUBSPACE_STEPS] += subspace_step(model, nc, buf, v, L)
-        if last == math.inf or stuck and first <= it + 1 < first + SUBSPACE_STEPS:
-            epoch = buf.counts[COUNT_CLOCK]  # impulses changed outside the updates
+        if subspace or last == math.inf:  # impulses changed outside the updates
+            epoch = buf.counts[COUNT_CLOCK]
     return limit, False
