@@ -48,6 +48,7 @@ class ContactBuffers(NamedTuple):
       keys: (C,) each candidate's key, increasing (it identifies the contact across steps).
       jac: (C, 3, 5, 3) per direction (normal, two tangents) the Jacobian rows (`rows.py`).
       kn: (C,) normal inverse mass. kt, kt_inv: (C, 4) the tangents' 2 x 2 and its inverse.
+        kc: (C, 2) the tangents' speeds per unit normal impulse (K's normal-tangent entries).
       k_inv: (C, 9) the inverse 3 x 3 mass of normal and tangents.
       gap, target, bounce: (C,) gap (m), target normal speed and bounce speed (m/s).
       active, acting: (C,) solved in this solve; pushed or bounces before the drift.
@@ -88,6 +89,7 @@ class ContactBuffers(NamedTuple):
     kn: np.ndarray
     kt: np.ndarray
     kt_inv: np.ndarray
+    kc: np.ndarray
     gap: np.ndarray
     target: np.ndarray
     bounce: np.ndarray
@@ -141,6 +143,7 @@ def contact_buffers(n_bodies, capacity, pair_capacity):
         kn=np.ones(c),
         kt=np.zeros((c, 4)),
         kt_inv=np.zeros((c, 4)),
+        kc=np.zeros((c, 2)),
         gap=np.zeros(c),
         target=np.zeros(c),
         bounce=np.zeros(c),

@@ -39,8 +39,9 @@ from reference_sim.jit import inlined_kernel, kernel
 def sticking(model, buf, k, v, vn, l0, l1, l2):
     """The change (d0, d1, d2) of contact k's impulses from l0, l1, l2 that meets its normal
     target (`buf.target`, at normal speed vn now) and stops its sliding, through its inverse
-    3 x 3 mass, the impulses it leads to (n0, n1, n2), and whether they are in bounds (normal
-    >= 0, friction in the Coulomb disc): the contact then sticks (`update`)."""
+    3 x 3 mass, the impulses it leads to (n0, n1, n2), whether they are in bounds (normal
+    >= 0, friction in the Coulomb disc): the contact then sticks (`update`), and its tangent
+    speeds u1, u2 now."""
     a, b = buf.cands[k, 0], buf.cands[k, 2]
     u1 = row_speed(buf.jac[k, 1], a, b, v, buf.omega)
     u2 = row_speed(buf.jac[k, 2], a, b, v, buf.omega)
@@ -53,7 +54,7 @@ def sticking(model, buf, k, v, vn, l0, l1, l2):
     d2 = ki[6] * e0 + (ki[7] * e1 + ki[8] * e2)
     n0, n1, n2 = l0 + d0, l1 + d1, l2 + d2
     sticks = n0 >= 0.0 and n1 * n1 + n2 * n2 <= (model.friction * n0) ** 2
-    return d0, d1, d2, n0, n1, n2, sticks
+    return d0, d1, d2, n0, n1, n2, sticks, u1, u2
 
 
 @inlined_kernel
@@ -64,13 +65,13 @@ def update(model, buf, k, v, L, change):
     cands, jac, kn, kt, kt_inv = buf.cands, buf.jac, buf.kn, buf.kt, buf.kt_inv
     target, omega, lam = buf.target, buf.omega, buf.lam
     a, b = cands[k, 0], cands[k, 2]
-    normal, tangent1, tangent2 = jac[k, 0], jac[k, 1], jac[k, 2]
-    vn = row_speed(normal, a, b, v, omega)
+    vn = row_speed(jac[k, 0], a, b, v, omega)
+    u1, u2 = 0.0, 0.0
     if model.friction > 0.0:
         # sticking: the impulse that meets the normal target and stops the sliding, all three
         # at once, if it is in the disc. Normal then friction converges slowly where they
         # couple (a corner below the centre of mass: pressing it turns the body, sliding it).
-        d0, d1, d2, n0, n1, n2, sticks = sticking(
+        d0, d1, d2, n0, n1, n2, sticks, u1, u2 = sticking(
             model, buf, k, v, vn, lam[k, 0], lam[k, 1], lam[k, 2]
         )
         if sticks:
@@ -83,22 +84,22 @@ def update(model, buf, k, v, L, change):
     new = max(lam[k, 0] + (target[k] - vn) / kn[k], 0.0)
     buf.slack[k] = vn - target[k] if new == 0.0 else -math.inf
     dl = new - lam[k, 0]
-    if dl != 0.0:
-        lam[k, 0] = new
-        push(model, jac[k], a, b, v, L, omega, dl, 0.0, 0.0)
-        change = max(change, abs(dl) * kn[k])
+    lam[k, 0] = new
+    change = max(change, abs(dl) * kn[k])
     # a contact that does not push and had no friction keeps none: its disc is a point
     if model.friction == 0.0 or new == 0.0 and lam[k, 1] == 0.0 and lam[k, 2] == 0.0:
+        if dl != 0.0:
+            push(model, jac[k], a, b, v, L, omega, dl, 0.0, 0.0)
         return change, False
     # friction: the impulse that stops the sliding if it fits in the Coulomb disc; else
     # mu P_n against the sliding velocity the contact would have without its own friction
     # (docs/contact-solver.md compares it with maximum dissipation). Clipping the stopping
     # impulse instead would aim the friction along K_t^-1 u, off the sliding direction
     # whenever K_t is anisotropic: a sliding cube would yaw and decelerate by less than mu g.
-    g1 = row_speed(tangent1, a, b, v, omega)
-    g2 = row_speed(tangent2, a, b, v, omega)
-    g1 -= kt[k, 0] * lam[k, 1] + kt[k, 1] * lam[k, 2]
-    g2 -= kt[k, 2] * lam[k, 1] + kt[k, 3] * lam[k, 2]
+    # The tangent speeds after the normal change, through K (`kc`): normal and friction
+    # changes are then pushed at once.
+    g1 = u1 + buf.kc[k, 0] * dl - (kt[k, 0] * lam[k, 1] + kt[k, 1] * lam[k, 2])
+    g2 = u2 + buf.kc[k, 1] * dl - (kt[k, 2] * lam[k, 1] + kt[k, 3] * lam[k, 2])
     f1 = -(kt_inv[k, 0] * g1 + kt_inv[k, 1] * g2)
     f2 = -(kt_inv[k, 2] * g1 + kt_inv[k, 3] * g2)
     limit = model.friction * lam[k, 0]
@@ -107,8 +108,8 @@ def update(model, buf, k, v, L, change):
         f1, f2 = -limit * g1 / slide, -limit * g2 / slide
     d1, d2 = f1 - lam[k, 1], f2 - lam[k, 2]
     lam[k, 1], lam[k, 2] = f1, f2
-    if d1 != 0.0 or d2 != 0.0:
-        push(model, jac[k], a, b, v, L, omega, 0.0, d1, d2)
+    if dl != 0.0 or d1 != 0.0 or d2 != 0.0:
+        push(model, jac[k], a, b, v, L, omega, dl, d1, d2)
         # kn, the normal's inverse mass, scales impulses to speeds like the tangents' would
         change = max(change, math.sqrt(d1 * d1 + d2 * d2) * kn[k])
     return change, False

@@ -121,7 +121,8 @@ def assemble_rows(model, buf, k, n, ra, rb):
 @inlined_kernel
 def _inverse_masses(model, buf, k, a, b):
     """Contact k's inverse 3 x 3 mass K = J M^-1 J^T from its rows: its normal entry `kn`, its
-    tangents' 2 x 2 `kt` and their inverse `kt_inv`, and the inverse of K, `k_inv`."""
+    tangents' 2 x 2 `kt` and their inverse `kt_inv`, the normal-tangent entries `kc`, and
+    the inverse of K, `k_inv`."""
     jac, kn, kt, kt_inv, k_inv = buf.jac, buf.kn, buf.kt, buf.kt_inv, buf.k_inv
     inv_mass = 1.0 / model.body_mass[a] + (1.0 / model.body_mass[b] if b >= 0 else 0.0)
     for d in range(3):
@@ -136,6 +137,8 @@ def _inverse_masses(model, buf, k, a, b):
             k_inv[k, 3 * e + d] = entry
             if d == 0 and e == 0:
                 kn[k] = entry
+            elif d == 0:
+                buf.kc[k, e - 1] = entry
             elif d > 0:
                 kt[k, 2 * (d - 1) + (e - 1)] = entry
                 kt[k, 2 * (e - 1) + (d - 1)] = entry
