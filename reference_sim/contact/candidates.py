@@ -82,7 +82,9 @@ def _plane_candidates_into(model, x, rot, reach, out, keys):
 @kernel
 def _pair_candidates_into(model, x, rot, reach, pairs, n_pairs, out, keys, k):
     """Particle-particle candidates of the first `n_pairs` body `pairs`, written to `out` and
-    `keys` from row k while there is room, in increasing key order; returns k plus how many."""
+    `keys` from row k while there is room, in increasing key order; returns k plus how many.
+    A pair is a candidate if its gap is below the bodies' reach plus the smaller radius,
+    tested on the squared distance (no square root for the many pairs that are not)."""
     npt = model.offsets.shape[0]
     nb = model.body_mass.shape[0]
     base = npt * model.plane_points.shape[0]
@@ -92,8 +94,9 @@ def _pair_candidates_into(model, x, rot, reach, pairs, n_pairs, out, keys, k):
             pa = particle(model, x, rot, a, i)
             for j in range(model.body_start[b], model.body_start[b + 1]):
                 dd = sub(pa, particle(model, x, rot, b, j))
-                gap = math.sqrt(dot(dd, dd)) - model.radius[i] - model.radius[j]
-                if gap < reach[a] + reach[b] + min(model.radius[i], model.radius[j]):
+                ri, rj = model.radius[i], model.radius[j]
+                within = reach[a] + reach[b] + min(ri, rj) + ri + rj  # centres' distance
+                if dot(dd, dd) < within * within:
                     if k < out.shape[0]:
                         out[k, 0], out[k, 1], out[k, 2], out[k, 3] = a, i, b, j
                         # pairs come sorted by (a, b): the keys increase
