@@ -12,7 +12,8 @@
 - Idle contacts: Gauss-Seidel sweeps that skip the contacts far from acting end where sweeps
   over every contact end.
 - Skipped solves: where a step skips the solve after the drift (no impulse to warm-start from,
-  none an update would start), a solve would have pushed nothing, bit for bit.
+  none that would change a speed by more than the solver's tolerance), a solve would have
+  changed no contact's speed by more than a few tolerances.
 """
 
 import numpy as np
@@ -36,6 +37,7 @@ from reference_sim.contact.candidates import all_pairs, find_candidates_into
 from reference_sim.contact.frames import frames_into, reach_into
 from reference_sim.contact.gauss_seidel import iterate
 from reference_sim.contact.grid import _bin, grid_pairs
+from reference_sim.contact.impulses import row_speed
 from reference_sim.contact.rows import assemble
 from reference_sim.contact.settings import (
     GRID_CELLS_PER_BODY,
@@ -388,24 +390,44 @@ def test_sweeps_that_skip_idle_contacts_end_where_full_sweeps_end(steps):
         np.testing.assert_array_equal(fast, plain)
 
 
+# A skipped solve's contacts each start within the solver's tolerance of their targets, and its
+# one sweep's updates of contacts sharing a body add up: at most 1.05 tolerances measured here.
+SKIP_SPEEDS = 2.0
+
+
+def _row_speeds(buf, nc, v, omega):
+    """Every active contact's speed along each of its three rows (m/s), (nc, 3)."""
+    return np.array(
+        [
+            [row_speed(buf.jac[k, r], buf.cands[k, 0], buf.cands[k, 2], v, omega) for r in range(3)]
+            for k in range(nc)
+            if buf.active[k]
+        ]
+    ).reshape(-1, 3)
+
+
 @pytest.mark.parametrize("integrator", ["euler", "splitting"])
-@pytest.mark.parametrize("case", ["dropped_cube", "bounce", "cube_collision", "cube_rain_8"])
-def test_a_skipped_post_drift_solve_would_push_nothing(case, integrator):
-    """After the drift a step skips the solve when no contact pushed after the last drift and
-    none would start to (`_pushes_nothing`): wherever that holds on the state a step leaves (its
-    post-drift rows, targets and velocities), a solve from no impulse must end after one sweep
-    with no impulse and every velocity and momentum bit for bit as it was. Skips must happen
-    (bodies leaving the floor or each other, pivoting, resting with `euler`; with `splitting`
-    the drift's half kick of gravity makes a resting or pivoting body's contacts approach, and
-    `dropped_cube` skips 3 of its 500)."""
+@pytest.mark.parametrize(
+    "case", ["dropped_cube", "bounce", "cube_collision", "cube_rain_8", "cube_stack", "incline"]
+)
+def test_a_skipped_post_drift_solve_would_change_no_speed_by_the_tolerance(case, integrator):
+    """After the drift a step skips the solve when no contact pushed after the last drift by
+    more than the solver's tolerance and none would start to (`_pushes_nothing`): wherever that
+    holds on the state a step leaves (its post-drift rows, targets and velocities), a solve
+    from no impulse must end after one sweep, every contact's speeds within SKIP_SPEEDS
+    tolerances of where they were. Skips must happen (bodies leaving the floor or each other,
+    pivoting, resting or sliding with `euler`; with `splitting` the drift's half kick of
+    gravity makes a resting or pivoting body's contacts approach, and `dropped_cube` skips 4 of
+    its 500)."""
     scene = CATALOG[case]
     model, state = _state(scene)
     nb = len(model.body_mass)
     threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * scene.dt  # as `run_rigid`'s
+    tolerance = solver_tolerance(scene.dt)
     x, q, v, L = (a.copy() for a in state)
     buf = contact_buffers(nb, 64 * nb, nb * nb)
     n_steps = min(1000, round(scene.duration / scene.dt))
-    skipped = 0
+    skipped, largest = 0, 0.0
     for _ in range(n_steps):
         remembered = buf.counts[COUNT_POST_WARM]
         assert (
@@ -413,14 +435,15 @@ def test_a_skipped_post_drift_solve_would_push_nothing(case, integrator):
             == 0
         )
         nc = buf.counts[COUNT_KEPT_ROWS]  # the candidates after the drift, assembled at this pose
-        if nc == 0 or not _pushes_nothing(model, nc, buf, v):
+        if nc == 0 or not _pushes_nothing(model, nc, buf, v, tolerance):
             continue
         skipped += remembered == 0
         work = ContactBuffers(*(a.copy() for a in buf))
         vv, LL = v.copy(), L.copy()
         solve(model, x, vv, LL, nc, scene.dt, work, work.post_keys, work.post_lam, 0, POST_DRIFT)
         assert work.solver[STAT_SWEEPS] - buf.solver[STAT_SWEEPS] == 1  # one sweep
-        assert not work.lam[:nc].any()
-        np.testing.assert_array_equal(vv, v)
-        np.testing.assert_array_equal(LL, L)
+        before = _row_speeds(buf, nc, v, buf.omega)
+        after = _row_speeds(work, nc, vv, work.omega)
+        largest = max(largest, float(np.abs(after - before).max(initial=0.0)) / tolerance)
+    assert largest <= SKIP_SPEEDS, f"{case} {integrator}: {largest:.3g} tolerances"
     assert skipped > 0

@@ -14,6 +14,11 @@ IMPACT_SLACK = 1e-6
 # Fraction of an already negative gap closed per step (Baumgarte's classic 0.2): removes the
 # rotation's second-order overshoots without a visible kick.
 BAUMGARTE = 0.2
+# Before the drift a contact whose gap is within this of zero (m) aims at normal speed 0, as a
+# touching one does after it, rather than at closing the gap: at rest, gaps wander by the
+# solver's leftover speeds times dt (+-5e-14 m in a resting `cube_stack`), and targets that
+# followed them asked a face's corners for speeds up to 5 tolerances apart.
+RESTING_GAP = 1e-13
 # Gauss-Seidel stops when no impulse changes a speed by more than this (m/s)...
 VELOCITY_TOLERANCE = 1e-13
 # ...or by GAP_ROUNDING / dt if larger: the targets -gap / dt carry the gaps' rounding (m) over
@@ -98,6 +103,14 @@ def describe(dt: float) -> dict:
             f"after unconverged sweeps {SUBSPACE_FIRST} to "
             f"{SUBSPACE_FIRST + SUBSPACE_STEPS - 1} of a solve, in scenes of "
             f"{SUBSPACE_MIN_BODIES} bodies or more"
+        ),
+        "resting_gap": (
+            f"before the drift, a contact whose gap is within {RESTING_GAP:g} m of zero aims "
+            "at normal speed 0, else at closing it (at BAUMGARTE of an overlap per step)"
+        ),
+        "post_drift_skip": (
+            "a solve after the drift is skipped when, from no impulse, it would change no "
+            "speed by more than the tolerance"
         ),
         "warm_start": (
             "last step's impulses, plus last step's change where the last two changes differ "

@@ -24,6 +24,7 @@ from reference_sim.contact.settings import (
     MAX_ITERATIONS,
     RESTART_MAX_BODIES,
     RESTART_SWEEPS,
+    RESTING_GAP,
     SUBSPACE_FIRST,
     SUBSPACE_FIRST_WARM,
     SUBSPACE_MIN_BODIES,
@@ -90,8 +91,9 @@ def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
     """Speculative impulses on the first nc candidates of `buf`, on the velocity the drift will
     use: v + drift_gravity (m/s), the part of this step's gravity the integrator adds during the
     drift. Every candidate acts, with target normal speed -gap / dt (a gap already negative is
-    closed at BAUMGARTE of its depth per step). Changes v and L; needs `buf.rot`, `buf.inv`,
-    `buf.omega` of the step's start.
+    closed at BAUMGARTE of its depth per step; one within RESTING_GAP of zero is left as it
+    is, target 0). Changes v and L; needs `buf.rot`, `buf.inv`, `buf.omega` of the step's
+    start.
 
     Leaves in `buf.bounce` the normal speed each contact must leave with after the drift: -e
     times its approach speed for an impact (a contact closing within the step faster than
@@ -108,7 +110,10 @@ def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
     _bounces(model, v, nc, dt, bounce_threshold, buf)
     for k in range(nc):
         gap = buf.gap[k]
-        buf.target[k] = -gap / dt if gap >= 0.0 else -BAUMGARTE * gap / dt
+        if abs(gap) <= RESTING_GAP:
+            buf.target[k] = 0.0
+        else:
+            buf.target[k] = -gap / dt if gap > 0.0 else -BAUMGARTE * gap / dt
     n_warm = buf.counts[COUNT_PRE_WARM]
     solve(model, x, v, L, nc, dt, buf, buf.pre_keys, buf.pre_lam, n_warm, np.int64(PRE_DRIFT))
     buf.counts[COUNT_PRE_WARM] = remember(nc, buf, buf.pre_keys, buf.pre_lam)
@@ -120,18 +125,30 @@ def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
 
 
 @inlined_kernel
-def _pushes_nothing(model, nc, buf, v):
-    """Whether a solve of the first nc contacts' active ones, from no impulse, would push
-    nothing: the first update of each (`update`) leaves it without impulse, its normal speed
-    at or above its target and, with friction, its sticking block out of bounds. The first
-    sweep then changes nothing and ends the solve."""
+def _pushes_nothing(model, nc, buf, v, tolerance):
+    """Whether a solve of the first nc contacts' active ones, from no impulse, would change no
+    speed by more than `tolerance`, the solver's own convergence test: each one's normal speed
+    is at most that below its target and, with friction, sticking (`sticking`) would not
+    change its tangent speeds by more."""
     for k in range(nc):
         if buf.active[k]:
             vn = row_speed(buf.jac[k, 0], buf.cands[k, 0], buf.cands[k, 2], v, buf.omega)
-            if not buf.target[k] - vn <= 0.0:
+            if buf.target[k] - vn > tolerance:
                 return False
-            if model.friction > 0.0 and sticking(model, buf, k, v, vn, 0.0, 0.0, 0.0)[6]:
-                return False
+            if model.friction > 0.0:
+                block = sticking(model, buf, k, v, vn, 0.0, 0.0, 0.0)
+                if block[6] and max(abs(block[7]), abs(block[8])) > tolerance:
+                    return False
+    return True
+
+
+@inlined_kernel
+def _moves_nothing(nc, buf, tolerance):
+    """Whether no contact's normal impulse moves its normal speed by more than `tolerance`
+    (its friction, at most mu times that impulse, then moves little more)."""
+    for k in range(nc):
+        if buf.lam[k, 0] * buf.kn[k] > tolerance:
+            return False
     return True
 
 
@@ -143,16 +160,18 @@ def after_drift(model, x, q, v, L, nc, dt, buf):
     Keeps the rows below `buf.counts[COUNT_KEPT_ROWS]`: the caller vouches that no body has
     moved by more than rounding (`rigid.POSE_ROUNDING`) since they were assembled.
 
-    A solve with no impulse to warm-start from (none pushed after the last drift) and none that
-    an update would start (`_pushes_nothing`) would end after one sweep having changed nothing:
-    it is counted, as a solve of no sweep, and skipped (a body at rest, a pivot, a ball leaving
-    the floor)."""
+    A solve with no impulse to warm-start from and none that would change a speed by more than
+    the solver's tolerance (`_pushes_nothing`) would end after one sweep having changed no
+    speed by more: it is counted, as a solve of no sweep, and skipped (a body at rest, a pivot,
+    a ball leaving the floor). Impulses that move no speed by more (`_moves_nothing`) are not
+    warm-started from."""
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
     assemble(model, x, nc, TOUCH_TOLERANCE, buf, buf.counts[COUNT_KEPT_ROWS])
     buf.counts[COUNT_KEPT_ROWS] = nc  # rows for the current pose, until the next drift
     for k in range(nc):
         buf.target[k] = buf.bounce[k]
-    if buf.counts[COUNT_POST_WARM] == 0 and _pushes_nothing(model, nc, buf, v):
+    tolerance = solver_tolerance(dt)
+    if buf.counts[COUNT_POST_WARM] == 0 and _pushes_nothing(model, nc, buf, v, tolerance):
         for k in range(nc):
             buf.lam[k, 0], buf.lam[k, 1], buf.lam[k, 2] = 0.0, 0.0, 0.0
         buf.solver[STAT_SOLVES] += 1
@@ -160,3 +179,5 @@ def after_drift(model, x, q, v, L, nc, dt, buf):
     n_warm = buf.counts[COUNT_POST_WARM]
     solve(model, x, v, L, nc, dt, buf, buf.post_keys, buf.post_lam, n_warm, np.int64(POST_DRIFT))
     buf.counts[COUNT_POST_WARM] = remember(nc, buf, buf.post_keys, buf.post_lam)
+    if _moves_nothing(nc, buf, tolerance):
+        buf.counts[COUNT_POST_WARM] = 0
