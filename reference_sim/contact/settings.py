@@ -65,9 +65,10 @@ SUBSPACE_REGULARIZATION = 1e-8
 # sliding update sets it to mu P_n up to rounding); inside, it sticks.
 DISC_ROUNDING = 1e-12
 # The warm start continues an impulse along its trend when its last two changes differ by less
-# than TREND_AGREEMENT of the latest, and the latest moves a speed by > TREND_NOISE tolerances.
+# than TREND_AGREEMENT of the latest, and the latest moves a speed by > TREND_NOISE tolerances
+# (a sliding face's impulses change by about 10 a step at dt 0.001: `incline`, `slide`).
 TREND_AGREEMENT = 0.5
-TREND_NOISE = 100.0
+TREND_NOISE = 10.0
 # Scenes with at least this many bodies find close body pairs on a uniform grid (linear in the
 # number of bodies); fewer are tested pair by pair, which is faster for a handful.
 GRID_MIN_BODIES = 16
