@@ -343,6 +343,8 @@ def _history(*steps):
     [
         # a steady trend: continued by its last change
         (((3.0, 0.5, -0.25), (2.0, 0.25, -0.125), (1.0, 0.0, 0.0)), (4.0, 0.75, -0.375)),
+        # a trend speeding up steadily: continued by its last change and that change's growth
+        (((3.0, 0.0, 0.0), (1.875, 0.0, 0.0), (1.0, 0.0, 0.0)), (4.375, 0.0, 0.0)),
         # changes that disagree in sign (jitter about a value): last step's impulses
         (((2.0, 0.0, 0.0), (1.0, 0.0, 0.0), (2.0, 0.0, 0.0)), (2.0, 0.0, 0.0)),
         # a contact two steps old has no trend yet

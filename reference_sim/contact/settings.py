@@ -64,9 +64,9 @@ SUBSPACE_REGULARIZATION = 1e-8
 # A contact whose friction impulse is within this relative rounding of mu P_n slides (the
 # sliding update sets it to mu P_n up to rounding); inside, it sticks.
 DISC_ROUNDING = 1e-12
-# The warm start continues an impulse along its trend when its last two changes differ by less
-# than TREND_AGREEMENT of the latest, and the latest moves a speed by > TREND_NOISE tolerances
-# (a sliding face's impulses change by about 10 a step at dt 0.001: `incline`, `slide`).
+# The warm start continues an impulse along its trend (to second order) when its last two
+# changes differ by less than TREND_AGREEMENT of the latest, and the latest moves a speed by
+# > TREND_NOISE tolerances (a sliding face's impulses change by about 10 a step at dt 0.001).
 TREND_AGREEMENT = 0.5
 TREND_NOISE = 10.0
 # Scenes with at least this many bodies find close body pairs on a uniform grid (linear in the
@@ -114,7 +114,7 @@ def describe(dt: float) -> dict:
             "speed by more than the tolerance"
         ),
         "warm_start": (
-            "last step's impulses, plus last step's change where the last two changes differ "
+            "last step's impulses, continued to second order where the last two changes differ "
             f"by less than {TREND_AGREEMENT} of it and it exceeds {TREND_NOISE:g} tolerances"
         ),
         "idle_contacts": (

@@ -1,5 +1,6 @@
 """The warm start: a contact that pushed last step starts from its impulses, continued along
-their trend where they change smoothly; the contacts that pushed are remembered for the next."""
+their trend (to second order) where they change smoothly; the contacts that pushed are
+remembered for the next."""
 
 import math
 
@@ -12,9 +13,10 @@ from reference_sim.jit import inlined_kernel, kernel
 @kernel
 def trend(model, warm_lam, at, kn, tolerance):
     """Warm-start impulses (normal, two tangents) from a contact's impulses of the last three
-    steps, warm_lam[at] (age, direction), NaN where it had none: last step's, continued by
-    last step's change if the last two changes agree (TREND_AGREEMENT) and are not rounding
-    jitter (TREND_NOISE), projected onto the impulses' bounds."""
+    steps, warm_lam[at] (age, direction), NaN where it had none: last step's, continued to
+    second order (last step's change plus its change from the one before) if the last two
+    changes agree (TREND_AGREEMENT) and are not rounding jitter (TREND_NOISE), projected onto
+    the impulses' bounds."""
     last = (warm_lam[at, 0, 0], warm_lam[at, 0, 1], warm_lam[at, 0, 2])
     if math.isnan(warm_lam[at, 2, 0]):
         return last
@@ -25,9 +27,10 @@ def trend(model, warm_lam, at, kn, tolerance):
         curve = max(curve, abs(latest - (warm_lam[at, 1, d] - warm_lam[at, 2, d])))
     if not (curve < TREND_AGREEMENT * change and change * kn > TREND_NOISE * tolerance):
         return last
-    p0 = max(2.0 * last[0] - warm_lam[at, 1, 0], 0.0)
-    p1 = 2.0 * last[1] - warm_lam[at, 1, 1]
-    p2 = 2.0 * last[2] - warm_lam[at, 1, 2]
+    # last + change + (change - previous change), the quadratic through the three steps
+    p0 = max(3.0 * (last[0] - warm_lam[at, 1, 0]) + warm_lam[at, 2, 0], 0.0)
+    p1 = 3.0 * (last[1] - warm_lam[at, 1, 1]) + warm_lam[at, 2, 1]
+    p2 = 3.0 * (last[2] - warm_lam[at, 1, 2]) + warm_lam[at, 2, 2]
     p1, p2 = into_disc(model.friction, p0, p1, p2)
     return p0, p1, p2
 
