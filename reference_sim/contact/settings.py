@@ -107,7 +107,7 @@ def describe(dt: float) -> dict:
         ),
         "resting_gap": (
             f"before the drift, a contact whose gap is within {RESTING_GAP:g} m of zero aims "
-            "at normal speed 0, else at closing it (at BAUMGARTE of an overlap per step)"
+            f"at normal speed 0, else at closing it (an overlap by {BAUMGARTE:g} of it a step)"
         ),
         "post_drift_skip": (
             "a solve after the drift is skipped when, from no impulse, it would change no "
