@@ -139,7 +139,7 @@ def _inverse_masses(model, buf, k, a, b):
                 kn[k] = entry
             elif d == 0:
                 buf.kc[k, e - 1] = entry
-            elif d > 0:
+            else:
                 kt[k, 2 * (d - 1) + (e - 1)] = entry
                 kt[k, 2 * (e - 1) + (d - 1)] = entry
     det = kt[k, 0] * kt[k, 3] - kt[k, 1] * kt[k, 2]
