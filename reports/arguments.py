@@ -126,7 +126,11 @@ def _add_run(sub) -> None:
     run_p.add_argument(
         "--duration", type=parse_time, help="simulated time in s (default: the case's)"
     )
-    run_p.add_argument("--out", help="write the trajectory table to FILE.csv or FILE.parquet")
+    run_p.add_argument(
+        "--out",
+        metavar="FILE.csv|FILE.parquet",
+        help="write the trajectory table to FILE.csv or FILE.parquet",
+    )
     _add_limits(run_p)
 
 
@@ -179,7 +183,7 @@ def _add_animate(sub) -> None:
     anim.add_argument(
         "--duration", type=parse_time, help="simulated time in s (default: the case's)"
     )
-    anim.add_argument("--out", required=True, help="the animation, FILE.gif")
+    anim.add_argument("--out", required=True, metavar="FILE.gif", help="the animation, FILE.gif")
     anim.add_argument(
         "--cache", help=f"results cache directory (default: ./{DEFAULT_OUT}/cache, the report's)"
     )
@@ -206,7 +210,9 @@ def _add_bench(sub) -> None:
         default=MIN_REPEATS,
         help=f"timed repeats per run, at least {MIN_REPEATS} (default {MIN_REPEATS})",
     )
-    ben.add_argument("--out", help="write the table to FILE.csv and its plot to FILE.png")
+    ben.add_argument(
+        "--out", metavar="FILE.csv", help="write the table to FILE.csv and its plot to FILE.png"
+    )
     _add_limits(ben)
 
 
