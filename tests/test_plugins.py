@@ -162,7 +162,9 @@ def test_a_faulty_plugin_fails_its_rows_in_a_bench_and_the_others_are_timed(with
     rows = table.set_index(["engine", "integrator"])
     assert rows.loc[("faulty", "raises"), "verdict"].startswith("failed: RuntimeError")
     assert rows.loc[("faulty", "wrong_mass"), "verdict"].startswith("failed: parity")
-    assert (rows.loc["mujoco", "steps_per_s"] > 0).all()
+    # timed: each MuJoCo row has its verdict and a measured rate (no speed is asserted)
+    assert (rows.loc["mujoco", "verdict"] == "ok").all()
+    assert rows.loc["mujoco", "steps_per_s"].notna().all()
 
 
 def test_a_scene_the_engine_does_not_model_is_refused_with_its_reason(with_faulty, capsys):
