@@ -524,6 +524,45 @@ def test_skipping_quiet_contacts_ends_where_sweeps_of_every_contact_would(monkey
     _assert_same_motion(step)
 
 
+@pytest.mark.parametrize("compiled", [True, False], ids=["compiled", "python"])
+def test_a_piles_sweep_finds_its_due_contacts_in_order_and_each_bodys_contacts(compiled):
+    """The bit sets of a pile's sweep (`gauss_seidel._sweep`): `_next_due` returns the due
+    contacts from a given one on, busy or idle, across words and at bit 63 (the sign bit of
+    an int64 word); `_link` lists each body's swept contacts and makes them all due, none idle;
+    `_due_on` makes a body's contacts due. Compiled and as the kernels' Python code."""
+
+    def kernel(f):
+        return f if compiled else f.py_func
+
+    next_due, link, due_on = (
+        kernel(f) for f in (gauss_seidel._next_due, gauss_seidel._link, gauss_seidel._due_on)
+    )
+    buf = buffers.contact_buffers(4, 200, 8)
+    swept = [0, 5, 63, 64, 130, 191]
+    bodies = {0: (0, -1), 5: (1, 0), 63: (2, 1), 64: (3, -1), 130: (1, 2), 191: (0, 3)}
+    for k, (a, b) in bodies.items():
+        buf.cands[k] = (a, 0, b, 0)
+    buf.busy[: len(swept)] = swept
+    link(buf, len(swept))
+
+    def listed(idle=False):
+        found, k = [], 0
+        while (k := next_due(buf, k, idle)) >= 0:
+            found.append(k)
+            k += 1
+        return found
+
+    assert listed() == swept and listed(idle=True) == []
+    for b in range(4):
+        on_b = sorted(buf.links[buf.link_first[b] : buf.link_first[b + 1]])
+        assert on_b == [k for k, pair in bodies.items() if b in pair]
+    buf.due[:] = 0
+    buf.idle[63 >> 6] |= np.int64(1) << np.int64(63)
+    due_on(buf, 2)  # contacts 63 (idle) and 130
+    assert listed() == [130] and listed(idle=True) == [63]
+    assert next_due(buf, 131, False) == -1
+
+
 def test_a_trusted_rate_extrapolates_sooner_to_the_same_motion():
     """`dropped_cube` (`euler`) rocking on an edge: the first step that starts with a rate
     trusted before the drift (`ContactBuffers.rates`) and extrapolates, run again from the same

@@ -17,9 +17,8 @@ COUNT_POST_WARM = 1  # contacts that pushed after the last drift (`post_keys`, `
 COUNT_PAIRS = 2  # rows of `pairs` the caller filled for this step; -1: found pair by pair here
 COUNT_KEPT_ROWS = 3  # rows below this hold their contact's gap, Jacobian and masses at this pose
 COUNT_STANDBY = 4  # candidates left on standby (`standby`)
-COUNT_CLOCK = 5  # contact updates so far (`seen`, `stamp`)
-COUNT_SWEEP = 6  # sweeps so far (`mark`)
-N_COUNTS = 7
+COUNT_SWEEP = 5  # sweeps so far (`mark`)
+N_COUNTS = 6
 
 # `ContactBuffers.solver`, the contact solver's statistics summed over a run:
 STAT_SOLVES = 0
@@ -72,8 +71,10 @@ class ContactBuffers(NamedTuple):
       rates: (2,) at PRE_DRIFT and POST_DRIFT, the rate of the last extrapolation that ended
         its solve (0: none).
       standby: (C,) candidates left on standby before the drift (`rows.assemble`).
-      seen: (C,) the clock (COUNT_CLOCK) at each contact's last update; stamp: (B,) at the last
-        update that changed the body's velocity by much (`gauss_seidel._sweep`).
+      due, idle: (C // 64 + 1,) bit sets over the candidates of a pile's solve: due for an
+        update, idle (`gauss_seidel._sweep`). link_first: (B + 1,) and links: (2C,) each body's
+        swept contacts, links[link_first[b]:link_first[b + 1]]. visited: (C,) the contacts the
+        last sweep of a pile updated, in order.
       mark: (B,) the sweep (COUNT_SWEEP) that last touched each body; touched: (B,) the bodies
         the current sweep has touched, in order (their velocities at its start in `bodies`).
     """
@@ -119,8 +120,11 @@ class ContactBuffers(NamedTuple):
     pose: np.ndarray
     rates: np.ndarray
     standby: np.ndarray
-    seen: np.ndarray
-    stamp: np.ndarray
+    due: np.ndarray
+    idle: np.ndarray
+    link_first: np.ndarray
+    links: np.ndarray
+    visited: np.ndarray
     mark: np.ndarray
     touched: np.ndarray
 
@@ -173,8 +177,11 @@ def contact_buffers(n_bodies, capacity, pair_capacity):
         pose=np.zeros((n_bodies, 7)),
         rates=np.zeros(2),
         standby=np.zeros(c, dtype=np.bool_),
-        seen=np.zeros(c, dtype=np.int64),
-        stamp=np.zeros(n_bodies, dtype=np.int64),
+        due=np.zeros(c // 64 + 1, dtype=np.int64),
+        idle=np.zeros(c // 64 + 1, dtype=np.int64),
+        link_first=np.zeros(n_bodies + 1, dtype=np.int64),
+        links=np.zeros(2 * c, dtype=np.int64),
+        visited=np.zeros(c, dtype=np.int64),
         mark=np.zeros(n_bodies, dtype=np.int64),
         touched=np.zeros(n_bodies, dtype=np.int64),
     )

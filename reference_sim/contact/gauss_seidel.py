@@ -1,11 +1,14 @@
 """Projected Gauss-Seidel on the contact impulses: one contact's update, the sweeps, their
-stopping rules (converged, stalled, cycling), idle contacts, and extrapolation along a steady
-rate of convergence."""
+stopping rules (converged, stalled, cycling), idle and quiet contacts, and extrapolation along a
+steady rate of convergence."""
 
 import math
 
+import numpy as np
+from numba.core.extending import overload
+from numba.cpython.unsafe.numbers import trailing_zeros
+
 from reference_sim.contact.buffers import (
-    COUNT_CLOCK,
     COUNT_SWEEP,
     PRE_DRIFT,
     STAT_EXTRAPOLATIONS,
@@ -22,7 +25,6 @@ from reference_sim.contact.settings import (
     CYCLE_START,
     MAX_ITERATIONS,
     QUIET_FRACTION,
-    QUIET_MIN_BODIES,
     RATE_AGREEMENT,
     RATE_MAX,
     RATE_SWEEPS,
@@ -144,6 +146,99 @@ def _touch(buf, v, body, sweep, n):
     return n
 
 
+def lowest_bit(word):
+    """The index of the lowest set bit of a nonzero int64 `word` (compiled: one instruction)."""
+    w = int(word)
+    return (w & -w).bit_length() - 1
+
+
+@overload(lowest_bit)
+def _lowest_bit_compiled(word):
+    return lambda word: trailing_zeros(word)
+
+
+@kernel
+def _bit(k):
+    """Contact k's word in a bit set and its bit there."""
+    return k >> 6, np.int64(1) << np.int64(k & 63)
+
+
+@kernel
+def _next_due(buf, k, idle):
+    """The first contact from k on that is due (`buf.due`) and idle (`buf.idle`) if `idle`,
+    else busy; -1 if there is none."""
+    w = k >> 6
+    if w >= buf.due.shape[0]:
+        return -1
+    word = buf.due[w] & (buf.idle[w] if idle else ~buf.idle[w])
+    word &= np.int64(-1) << np.int64(k & 63)
+    while word == 0:
+        w += 1
+        if w >= buf.due.shape[0]:
+            return -1
+        word = buf.due[w] & (buf.idle[w] if idle else ~buf.idle[w])
+    return (w << 6) + lowest_bit(word)
+
+
+@kernel
+def _due_on(buf, body):
+    """Every swept contact on `body` is due (`buf.links`)."""
+    for m in range(buf.link_first[body], buf.link_first[body + 1]):
+        w, bit = _bit(buf.links[m])
+        buf.due[w] |= bit
+
+
+@kernel
+def _all_due(buf, n_swept):
+    """Every swept contact (the first n_swept of `buf.busy`) is due."""
+    for m in range(n_swept):
+        w, bit = _bit(buf.busy[m])
+        buf.due[w] |= bit
+
+
+@kernel
+def _link(buf, n_swept):
+    """Each body's swept contacts (the first n_swept of `buf.busy`) into `buf.links`, body b's
+    from `buf.link_first[b]`, all due and none idle (`iterate_pile`)."""
+    first, links, nb = buf.link_first, buf.links, buf.link_first.shape[0] - 1
+    for w in range(buf.due.shape[0]):
+        buf.due[w], buf.idle[w] = 0, 0
+    for b in range(nb + 1):
+        first[b] = 0
+    for m in range(n_swept):  # counted, summed, then filled from each body's end
+        k = buf.busy[m]
+        first[buf.cands[k, 0]] += 1
+        if buf.cands[k, 2] >= 0:
+            first[buf.cands[k, 2]] += 1
+    for b in range(1, nb + 1):
+        first[b] += first[b - 1]
+    for m in range(n_swept):
+        k = buf.busy[m]
+        for b in (buf.cands[k, 0], buf.cands[k, 2]):
+            if b >= 0:
+                first[b] -= 1
+                links[first[b]] = k
+    _all_due(buf, n_swept)
+
+
+@kernel
+def _regroup_visited(buf, n_visited, n_busy, n_idle, margin):
+    """A pile's `_regroup`: the contacts the last sweep updated (`buf.visited`) become busy
+    or idle (`_busy`); the others keep their group. Returns the new counts of each."""
+    for m in range(n_visited):
+        k = buf.visited[m]
+        w, bit = _bit(k)
+        was_idle = (buf.idle[w] & bit) != 0
+        if _busy(buf, k, margin):
+            if was_idle:
+                buf.idle[w] &= ~bit
+                n_busy, n_idle = n_busy + 1, n_idle - 1
+        elif not was_idle:
+            buf.idle[w] |= bit
+            n_busy, n_idle = n_busy - 1, n_idle + 1
+    return n_busy, n_idle
+
+
 @kernel
 def _busy(buf, k, margin):
     """Whether contact k is busy: it pushes, or its normal speed is within `margin` (m/s) of
@@ -205,13 +300,13 @@ def cycles(cycle, n, moved):
 
 
 @kernel
-def extrapolate(model, buf, n, v, L, factor):
+def extrapolate(model, buf, order, n, v, L, factor):
     """Add `factor` times the last sweep's impulse change (since `buf.lam_sweep`) to each of the
-    first n contacts of `buf.busy`, projected onto its bounds (normal >= 0, friction in the
+    first n contacts of `order`, projected onto its bounds (normal >= 0, friction in the
     Coulomb disc), and apply the changes to v and L. The sweeps go on from there and still
     decide convergence."""
     for m in range(n):
-        k = buf.busy[m]
+        k = order[m]
         lam, last = buf.lam[k], buf.lam_sweep[k]
         p0 = lam[0] + factor * (lam[0] - last[0])
         p1 = lam[1] + factor * (lam[1] - last[1])
@@ -242,64 +337,92 @@ def _sweep_start(buf, n_busy, armed):
 
 
 @inlined_kernel
-def _sweep(model, buf, v, L, n_busy, n_idle, tolerance, sticking_seen, epoch, quiet):
+def _sweep(model, buf, v, L, n_busy, n_idle, tolerance, sticking_seen):
     """One sweep: the busy contacts, then the idle ones if the busy ones pass the stopping test
-    (one loop: `update` is inlined once). A contact whose last update (after `epoch`, on the
-    clock COUNT_CLOCK) changed a speed by less than `quiet` and whose bodies no update has
-    changed by that much since is quiet, and skipped: an update would change it little more
-    than it did. Returns the largest speed an update changed, the largest body velocity change
-    (`_moved`), whether the sweep converged, whether it visited the idle contacts,
-    `sticking_seen`, or-ed with whether some contact stuck, and whether it skipped quiet
-    contacts (a convergence then needs a sweep of them all to confirm it, `iterate`)."""
-    order, seen, stamp = buf.busy, buf.seen, buf.stamp
-    quiet_ok = v.shape[0] >= QUIET_MIN_BODIES
+    (one loop: `update` is inlined once). Returns the largest speed an update changed, the
+    largest body velocity change (`_moved`), whether the sweep converged, whether it visited
+    the idle contacts, and `sticking_seen`, or-ed with whether some contact stuck."""
+    order = buf.busy
     end = order.shape[0] - 1
     change = 0.0
-    clock = buf.counts[COUNT_CLOCK]
     sweep = buf.counts[COUNT_SWEEP] + 1
     buf.counts[COUNT_SWEEP] = sweep
-    rejoin, m, stop, skipped, n_touched = False, 0, n_busy, False, 0
+    rejoin, m, stop, n_touched = False, 0, n_busy, 0
     while True:
         while m < stop:
             k = order[m] if m < n_busy else order[end - (m - n_busy)]
             m += 1
-            a, b, last = buf.cands[k, 0], buf.cands[k, 2], seen[k]
-            if quiet_ok and last > epoch and stamp[a] < last and (b < 0 or stamp[b] < last):
-                skipped = True
-                buf.solver[STAT_QUIET] += 1
-                continue
+            a, b = buf.cands[k, 0], buf.cands[k, 2]
             n_touched = _touch(buf, v, a, sweep, n_touched)
             n_touched = _touch(buf, v, b, sweep, n_touched)
             own, sticks = update(model, buf, k, v, L, 0.0)
             change = max(change, own)
             sticking_seen = sticking_seen or sticks
-            clock += 1
-            seen[k] = clock
-            if own >= quiet:  # its bodies moved: every contact on them is due
-                stamp[a] = clock
-                if b >= 0:
-                    stamp[b] = clock
         moved = _moved(model, v, buf.omega, buf.bodies, buf.touched, n_touched)
         converged = change < tolerance or moved < tolerance
         if rejoin or not converged or n_idle == 0:
             break
         rejoin, stop = True, n_busy + n_idle
-    buf.counts[COUNT_CLOCK] = clock
-    return change, moved, converged, rejoin, sticking_seen, skipped
+    return change, moved, converged, rejoin, sticking_seen
 
 
 @inlined_kernel
-def _follow_rate(model, buf, n_busy, v, L, moved, last, rate, steady, armed, trusted, tried):
+def _pile_sweep(model, buf, v, L, n_busy, n_idle, tolerance, sticking_seen, quiet, armed):
+    """A pile's sweep (`_sweep`), of the contacts that are due only (`buf.due`): a contact
+    whose last update changed a speed by less than `quiet` and whose bodies no update has
+    changed by that much since is quiet, and skipped, as an update would change it little more
+    than it did. The updated ones are listed in `buf.visited`, their impulses first kept in
+    `buf.lam_sweep` if `armed`. Returns what `_sweep` does, then whether it skipped quiet
+    contacts (a convergence then needs a sweep of them all to confirm it, `iterate`) and how
+    many contacts it updated."""
+    change = 0.0
+    sweep = buf.counts[COUNT_SWEEP] + 1
+    buf.counts[COUNT_SWEEP] = sweep
+    rejoin, n_touched, visits = False, 0, 0
+    while True:
+        k = _next_due(buf, 0, rejoin)
+        while k >= 0:
+            w, bit = _bit(k)
+            buf.due[w] &= ~bit
+            buf.visited[visits] = k
+            visits += 1
+            if armed:
+                for d in range(3):
+                    buf.lam_sweep[k, d] = buf.lam[k, d]
+            a, b = buf.cands[k, 0], buf.cands[k, 2]
+            n_touched = _touch(buf, v, a, sweep, n_touched)
+            n_touched = _touch(buf, v, b, sweep, n_touched)
+            own, sticks = update(model, buf, k, v, L, 0.0)
+            change = max(change, own)
+            sticking_seen = sticking_seen or sticks
+            if own >= quiet:  # its bodies moved: every contact on them is due
+                _due_on(buf, a)
+                if b >= 0:
+                    _due_on(buf, b)
+            k = _next_due(buf, k + 1, rejoin)
+        moved = _moved(model, v, buf.omega, buf.bodies, buf.touched, n_touched)
+        converged = change < tolerance or moved < tolerance
+        if rejoin or not converged or n_idle == 0:
+            break
+        rejoin = True
+    quiet_ones = n_busy + (n_idle if rejoin else 0) - visits
+    buf.solver[STAT_QUIET] += quiet_ones
+    return change, moved, converged, rejoin, sticking_seen, quiet_ones > 0, visits
+
+
+@inlined_kernel
+def _follow_rate(model, buf, order, n, v, L, moved, last, rate, steady, armed, trusted, tried):
     """The sweeps' rate of convergence after a sweep whose velocity change is `moved`; once
     steady (RATE_SWEEPS) or agreeing with the `trusted` one, and `armed`, the last sweep's
     impulse change is extrapolated (`extrapolate`) and `tried` set to its rate. Returns the new
-    (last, rate, steady, armed, tried)."""
+    (last, rate, steady, armed, tried). The extrapolation moves the first n contacts of
+    `order`: the busy ones, in a pile those the sweep updated."""
     ratio = moved / last
     steady = steady + 1 if abs(ratio - rate) < RATE_AGREEMENT * ratio else 0
     rate, last = ratio, moved
     known = abs(ratio - trusted) < RATE_AGREEMENT * ratio
     if armed and (steady >= RATE_SWEEPS - 1 or known) and rate < RATE_MAX:
-        extrapolate(model, buf, n_busy, v, L, rate / (1.0 - rate))
+        extrapolate(model, buf, order, n, v, L, rate / (1.0 - rate))
         buf.solver[STAT_EXTRAPOLATIONS] += 1
         tried = rate
         last, rate, steady = math.inf, 0.0, 0
@@ -337,18 +460,12 @@ def iterate(
     progress, since = math.inf, 0  # the velocity change at its last fall (STALL_PROGRESS)
     last, rate, steady, armed = math.inf, 0.0, 0, False
     trusted, tried = buf.rates[slot], 0.0
-    epoch = buf.counts[COUNT_CLOCK]  # no contact is quiet before its first update
-    change = 0.0  # the first sweep's quiet threshold is the tolerance
     for it in range(limit):
         _sweep_start(buf, n_busy, armed)
         stuck = model.friction == 0.0  # a subspace step needs a sticking contact
-        quiet = max(tolerance, QUIET_FRACTION * change)  # of the sweep before
-        change, moved, converged, rejoin, stuck, skipped = _sweep(
-            model, buf, v, L, n_busy, n_idle, tolerance, stuck, epoch, quiet
+        change, moved, converged, rejoin, stuck = _sweep(
+            model, buf, v, L, n_busy, n_idle, tolerance, stuck
         )
-        if converged and skipped:  # confirmed by a sweep of every contact
-            epoch = buf.counts[COUNT_CLOCK]
-            continue
         if converged:
             awake = wake(model, x, nc, dt, buf, v, n_busy)
             if awake == n_busy:
@@ -356,7 +473,6 @@ def iterate(
                     buf.rates[slot] = tried
                 return it + 1, True
             n_busy = awake  # sweeps go on with the woken contacts
-            epoch = buf.counts[COUNT_CLOCK]
             last, rate, steady, armed, tried = math.inf, 0.0, 0, False, 0.0
             continue
         if tried > 0.0:  # it did not: no rate is trusted
@@ -369,12 +485,60 @@ def iterate(
         if it >= CYCLE_START and cycles(buf.cycle, it - CYCLE_START, moved):
             return it + 1, False
         last, rate, steady, armed, tried = _follow_rate(
-            model, buf, n_busy, v, L, moved, last, rate, steady, armed, trusted, tried
+            model, buf, buf.busy, n_busy, v, L, moved, last, rate, steady, armed, trusted, tried
         )
         n_busy, n_idle = _regroup(buf, n_busy, n_idle, idle_margin * change, rejoin)
-        subspace = stuck and first <= it + 1 < first + SUBSPACE_STEPS
-        if subspace:
+        if stuck and first <= it + 1 < first + SUBSPACE_STEPS:
             buf.solver[STAT_SUBSPACE_STEPS] += subspace_step(model, nc, buf, v, L)
-        if subspace or last == math.inf:  # impulses changed outside the updates
-            epoch = buf.counts[COUNT_CLOCK]
+    return limit, False
+
+
+@kernel
+def iterate_pile(model, x, nc, dt, buf, v, L, tolerance, idle_margin, first, slot, limit):
+    """`iterate` for a pile (QUIET_MIN_BODIES bodies or more), whose sweeps skip quiet contacts
+    too (`_pile_sweep`). Called, not inlined: the single bodies' step has none of its code."""
+    n_busy, n_idle = _list_busy(nc, buf), 0
+    n_swept = n_busy  # busy and idle, the first n_swept of `buf.busy`
+    _link(buf, n_swept)
+    progress, since = math.inf, 0
+    last, rate, steady, armed = math.inf, 0.0, 0, False
+    trusted, tried = buf.rates[slot], 0.0
+    change = 0.0  # the first sweep's quiet threshold is the tolerance
+    for it in range(limit):
+        stuck = model.friction == 0.0
+        quiet = max(tolerance, QUIET_FRACTION * change)  # of the sweep before
+        change, moved, converged, rejoin, stuck, skipped, visits = _pile_sweep(
+            model, buf, v, L, n_busy, n_idle, tolerance, stuck, quiet, armed
+        )
+        if converged and skipped:  # confirmed by a sweep of every contact
+            _all_due(buf, n_swept)
+            continue
+        if converged:
+            awake = wake(model, x, nc, dt, buf, v, n_swept)
+            if awake == n_swept:
+                if tried > 0.0:
+                    buf.rates[slot] = tried
+                return it + 1, True
+            n_busy, n_idle, n_swept = awake, 0, awake  # the woken contacts too, all due
+            _link(buf, n_swept)
+            last, rate, steady, armed, tried = math.inf, 0.0, 0, False, 0.0
+            continue
+        if tried > 0.0:
+            trusted, tried = 0.0, 0.0
+            buf.rates[slot] = 0.0
+        if moved < STALL_PROGRESS * progress:
+            progress, since = moved, it
+        elif it - since >= STALL_SWEEPS:
+            return it + 1, False
+        if it >= CYCLE_START and cycles(buf.cycle, it - CYCLE_START, moved):
+            return it + 1, False
+        last, rate, steady, armed, tried = _follow_rate(
+            model, buf, buf.visited, visits, v, L, moved, last, rate, steady, armed, trusted, tried
+        )
+        n_busy, n_idle = _regroup_visited(buf, visits, n_busy, n_idle, idle_margin * change)
+        stepped = stuck and first <= it + 1 < first + SUBSPACE_STEPS
+        stepped = stepped and subspace_step(model, nc, buf, v, L)
+        buf.solver[STAT_SUBSPACE_STEPS] += stepped
+        if stepped or last == math.inf:  # impulses changed outside the updates
+            _all_due(buf, n_swept)
     return limit, False

@@ -14,7 +14,7 @@ from reference_sim.contact.buffers import (
     STAT_UNCONVERGED,
 )
 from reference_sim.contact.frames import frames_into
-from reference_sim.contact.gauss_seidel import iterate, sticking
+from reference_sim.contact.gauss_seidel import iterate, iterate_pile, sticking
 from reference_sim.contact.impulses import row_speed, set_impulses
 from reference_sim.contact.rows import assemble
 from reference_sim.contact.settings import (
@@ -22,6 +22,7 @@ from reference_sim.contact.settings import (
     IDLE_MARGIN,
     IMPACT_SLACK,
     MAX_ITERATIONS,
+    QUIET_MIN_BODIES,
     RESTART_MAX_BODIES,
     RESTART_SWEEPS,
     RESTING_GAP,
@@ -70,9 +71,14 @@ def solve(model, x, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm, slot):
     budget = RESTART_SWEEPS if restart else MAX_ITERATIONS
     sweeps = 0
     while True:  # one call site: `iterate` is inlined
-        used, converged = iterate(
-            model, x, nc, dt, buf, v, L, tolerance, IDLE_MARGIN, first, slot, budget
-        )
+        if v.shape[0] >= QUIET_MIN_BODIES:
+            used, converged = iterate_pile(
+                model, x, nc, dt, buf, v, L, tolerance, IDLE_MARGIN, first, slot, budget
+            )
+        else:
+            used, converged = iterate(
+                model, x, nc, dt, buf, v, L, tolerance, IDLE_MARGIN, first, slot, budget
+            )
         sweeps += used
         if converged or not restart:
             break
