@@ -26,7 +26,7 @@ STAT_SWEEPS = 1  # Gauss-Seidel sweeps
 STAT_UNCONVERGED = 2  # solves stopped at MAX_ITERATIONS, stalled or cycling
 STAT_SUBSPACE_STEPS = 3
 STAT_EXTRAPOLATIONS = 4
-STAT_QUIET = 5  # updates skipped as quiet (`gauss_seidel._sweep`)
+STAT_QUIET = 5  # updates skipped as quiet (`gauss_seidel._pile_sweep`)
 SOLVER_STATISTICS = 6
 
 # `ContactBuffers.rates` and the solves' `slot`: the solve before the drift and the one after.
@@ -72,9 +72,9 @@ class ContactBuffers(NamedTuple):
         its solve (0: none).
       standby: (C,) candidates left on standby before the drift (`rows.assemble`).
       due, idle: (C // 64 + 1,) bit sets over the candidates of a pile's solve: due for an
-        update, idle (`gauss_seidel._sweep`). link_first: (B + 1,) and links: (2C,) each body's
-        swept contacts, links[link_first[b]:link_first[b + 1]]. visited: (C,) the contacts the
-        last sweep of a pile updated, in order.
+        update, idle (`gauss_seidel._pile_sweep`). link_first: (B + 1,) and links: (2C,) each
+        body's swept contacts, links[link_first[b]:link_first[b + 1]]. visited: (C,) the
+        contacts the last sweep of a pile updated, in order.
       mark: (B,) the sweep (COUNT_SWEEP) that last touched each body; touched: (B,) the bodies
         the current sweep has touched, in order (their velocities at its start in `bodies`).
     """
