@@ -496,7 +496,9 @@ def iterate(
 @kernel
 def iterate_pile(model, x, nc, dt, buf, v, L, tolerance, idle_margin, first, slot, limit):
     """`iterate` for a pile (QUIET_MIN_BODIES bodies or more), whose sweeps skip quiet contacts
-    too (`_pile_sweep`). Called, not inlined: the single bodies' step has none of its code."""
+    too (`_pile_sweep`). Called, not inlined: the single bodies' step has none of its code. Its
+    stall and cycle rules repeat `iterate`'s: shared as a helper, they made the single bodies'
+    build up to 14 % slower (docs/contact-solver.md, "Due contacts")."""
     n_busy, n_idle = _list_busy(nc, buf), 0
     n_swept = n_busy  # busy and idle, the first n_swept of `buf.busy`
     _link(buf, n_swept)
