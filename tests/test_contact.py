@@ -526,7 +526,7 @@ def test_skipping_quiet_contacts_ends_where_sweeps_of_every_contact_would(monkey
 
 @pytest.mark.parametrize("compiled", [True, False], ids=["compiled", "python"])
 def test_a_piles_sweep_finds_its_due_contacts_in_order_and_each_bodys_contacts(compiled):
-    """The bit sets of a pile's sweep (`gauss_seidel._sweep`): `_next_due` returns the due
+    """The bit sets of a pile's sweep (`gauss_seidel._pile_sweep`): `_next_due` returns the due
     contacts from a given one on, busy or idle, across words and at bit 63 (the sign bit of
     an int64 word); `_link` lists each body's swept contacts and makes them all due, none idle;
     `_due_on` makes a body's contacts due. Compiled and as the kernels' Python code."""

@@ -373,7 +373,7 @@ def _pile_sweep(model, buf, v, L, n_busy, n_idle, tolerance, sticking_seen, quie
     changed by that much since is quiet, and skipped, as an update would change it little more
     than it did. The updated ones are listed in `buf.visited`, their impulses first kept in
     `buf.lam_sweep` if `armed`. Returns what `_sweep` does, then whether it skipped quiet
-    contacts (a convergence then needs a sweep of them all to confirm it, `iterate`) and how
+    contacts (a convergence then needs a sweep of them all to confirm it, `iterate_pile`) and how
     many contacts it updated."""
     change = 0.0
     sweep = buf.counts[COUNT_SWEEP] + 1
