@@ -30,7 +30,7 @@ from reference_sim.contact.buffers import (
 )
 from reference_sim.contact.candidates import find_candidates_into
 from reference_sim.contact.frames import frames_into, reach_into, world_omega
-from reference_sim.contact.grid import grid_pairs
+from reference_sim.contact.pair_list import current_pairs, pair_list
 from reference_sim.contact.settings import GRID_MIN_BODIES
 from reference_sim.contact.step import after_drift, before_drift
 from reference_sim.exact_rotation import exact_rotation
@@ -237,20 +237,20 @@ def _steps(
 
 
 @compiled
-def _grid_pairs(model, integrator, x, q, v, L, dt, buf):
-    """Body pairs of the coming step, found on the grid (`grid_pairs`), copied into `buf`
-    (grown if needed) for `rigid_step`; returns the buffers."""
+def _body_pairs(model, integrator, x, q, v, L, dt, buf, found):
+    """Body pairs of the coming step from the list `found` (`current_pairs`: the grid's pairs,
+    searched again only when the bodies have moved out of its skins), copied into `buf` (grown
+    if needed) for `rigid_step`; returns the buffers and the list."""
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
     g = model.gravity if integrator == EULER and model.gravity_on else np.zeros(3)
     reach = np.empty(x.shape[0])
     reach_into(model, v, buf.omega, dt, (dt * g[0], dt * g[1], dt * g[2]), reach)
-    pairs = grid_pairs(model, x, reach)
-    if pairs.shape[0] > buf.pairs.shape[0]:
-        buf = grown(buf, buf.cands.shape[0], 2 * pairs.shape[0])
-    for p in range(pairs.shape[0]):
-        buf.pairs[p, 0], buf.pairs[p, 1] = pairs[p, 0], pairs[p, 1]
-    buf.counts[COUNT_PAIRS] = pairs.shape[0]
-    return buf
+    found, n = current_pairs(model.bound_radius, x, reach, found, buf.pairs)
+    if n > buf.pairs.shape[0]:
+        buf = grown(buf, buf.cands.shape[0], 2 * n)
+        found, n = current_pairs(model.bound_radius, x, reach, found, buf.pairs)
+    buf.counts[COUNT_PAIRS] = n
+    return buf, found
 
 
 @kernel
@@ -286,10 +286,11 @@ def run_rigid(model, integrator, x, q, v, L, dt, n_steps, stride):
     _record_state(model, x, q, v, L, out[0])
     steps[0] = 0
     progress = np.ones(2, dtype=np.int64)  # the next step and the next sample's slot
+    found = pair_list(nb)
     while progress[0] <= n_steps:
         last = n_steps
-        if nb >= GRID_MIN_BODIES:  # body pairs from the grid, one step at a time
-            buf = _grid_pairs(model, integrator, x, q, v, L, dt, buf)
+        if nb >= GRID_MIN_BODIES:  # body pairs from the grid's list, one step at a time
+            buf, found = _body_pairs(model, integrator, x, q, v, L, dt, buf, found)
             last = progress[0]
         needed = _steps(
             model,

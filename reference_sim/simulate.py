@@ -8,6 +8,7 @@ import numpy as np
 from reference_sim.contact.buffers import contact_buffers, grown
 from reference_sim.contact.candidates import find_candidates_into
 from reference_sim.contact.frames import frames_into
+from reference_sim.contact.pair_list import pair_list
 from reference_sim.contact.step import after_drift, before_drift
 from reference_sim.model import (
     Model,
@@ -17,7 +18,7 @@ from reference_sim.model import (
     rigid_initial_state,
     seed_initial_state,
 )
-from reference_sim.rigid import INTEGRATOR_CODES, _free_steps, _grid_pairs, run_rigid_fields
+from reference_sim.rigid import INTEGRATOR_CODES, _body_pairs, _free_steps, run_rigid_fields
 from reference_sim.seed import run_seed
 
 INTEGRATORS = ("seed", *INTEGRATOR_CODES)
@@ -132,7 +133,7 @@ def compile_stage(stage: str) -> None:
         out, steps = np.empty((2, 1, 13)), np.empty(2, dtype=np.int64)
         _free_steps(model, INTEGRATOR_CODES["splitting"], x, q, v, L, dt, 1, 1, out, steps)
         buf = grown(contact_buffers(1, 8, 4), 16, 4)
-        _grid_pairs(model, INTEGRATOR_CODES["splitting"], x, q, v, L, dt, buf)
+        _body_pairs(model, INTEGRATOR_CODES["splitting"], x, q, v, L, dt, buf, pair_list(1))
     elif stage == "seed":
         simulate(model, seed_initial_state(model, corners[:, :3], velocity, omega), "seed", dt, 2)
     elif stage == "rigid":

@@ -4,7 +4,7 @@
   plain numpy transliteration of each integrator's formulas (`straightforward_step` below).
 - Broadphase: body pairs found on the uniform grid (coarsened to its cell budget when the bodies
   spread wide) are exactly those found pair by pair, and a crowded scene stepped with either
-  is bit-equal.
+  is bit-equal; the pair list kept between steps gives the grid's pairs at every step.
 - Contact rows: a step's first assembly keeps the rows the last step's second made (the bodies
   have not moved since), and its second those of its first while no body has moved by
   POSE_ROUNDING; every row a step leaves is what assembling it afresh gives, to rounding, and a
@@ -38,6 +38,7 @@ from reference_sim.contact.frames import frames_into, reach_into
 from reference_sim.contact.gauss_seidel import iterate
 from reference_sim.contact.grid import _bin, grid_pairs
 from reference_sim.contact.impulses import row_speed
+from reference_sim.contact.pair_list import current_pairs, pair_list
 from reference_sim.contact.rows import assemble
 from reference_sim.contact.settings import (
     GRID_CELLS_PER_BODY,
@@ -206,6 +207,49 @@ def test_grid_matches_pairwise_on_far_flung_and_nan_bodies():
     broken = state.x.copy()
     broken[3] = np.nan
     np.testing.assert_array_equal(grid_pairs(model, broken, reach), all_pairs(model, broken, reach))
+
+
+@pytest.mark.parametrize("integrator", ["euler", "splitting"])
+def test_pair_list_gives_the_grids_pairs_at_every_step(integrator):
+    """The crowd stepped with body pairs from a `PairList`: every step's pairs are the grid's
+    at that step's reach, in order, while the list is both kept for some steps and found again
+    for others (both paths run)."""
+    scene = crowd()
+    model, state = _state(scene)
+    nb = len(model.body_mass)
+    threshold = BOUNCE_STEPS * 10.0 * scene.dt
+    code = INTEGRATOR_CODES[integrator]
+    x, q, v, L = (a.copy() for a in state)
+    buf = contact_buffers(nb, 64 * nb, nb * nb)
+    found, kept, listed = pair_list(nb), 0, 0
+    for _ in range(100):
+        frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
+        kick = tuple(scene.dt * model.gravity) if integrator == "euler" else (0.0,) * 3
+        reach = np.empty(nb)
+        reach_into(model, v, buf.omega, scene.dt, kick, reach)
+        last = found
+        found, n = current_pairs(model.bound_radius, x, reach, last, buf.pairs)
+        kept += found.x0 is last.x0
+        listed += n
+        np.testing.assert_array_equal(buf.pairs[:n], grid_pairs(model, x, reach))
+        buf.counts[COUNT_PAIRS] = n
+        assert rigid_step(model, code, x, q, v, L, scene.dt, threshold, buf) == 0
+    assert listed > 0 and 0 < kept < 99
+
+
+def test_pair_list_is_found_again_for_nan_bodies():
+    """A NaN centre or reach fits no list: it is found again (every pair, as the grid's)."""
+    model, state = _state(crowd())
+    reach = _reach(model, state, 0.005)
+    nb = len(model.body_mass)
+    out = np.empty((nb * nb, 2), dtype=np.int64)
+    found, _ = current_pairs(model.bound_radius, state.x, reach, pair_list(nb), out)
+    assert current_pairs(model.bound_radius, state.x, reach, found, out)[0].x0 is found.x0
+    for broken_x, broken_reach in ((state.x.copy(), reach), (state.x, reach.copy())):
+        broken_x[3, 0], broken_reach[3] = np.nan, np.nan
+        again, n = current_pairs(model.bound_radius, broken_x, broken_reach, found, out)
+        assert again.x0 is not found.x0
+        np.testing.assert_array_equal(out[:n], grid_pairs(model, broken_x, broken_reach))
 
 
 @pytest.mark.parametrize("integrator", ["euler", "splitting"])

@@ -75,6 +75,15 @@ GRID_MIN_BODIES = 16
 # The grid has at most this many cells a body (8 bytes each): scenes spread wider get coarser
 # cells, which only add candidate tests.
 GRID_CELLS_PER_BODY = 8
+# A pile's body pairs are found again when some body's reach plus its move exceeds its skin
+# (`pair_list`): SKIN_REACHES of its reach when found plus SKIN_RADII of its bounding radius.
+# Wider skins are found again less often but list more pairs, and the grid's cells grow with
+# the widest: in `cube_rain_1000` these cost least of 2 to 4 and 0.05 to 0.2 (docs/).
+SKIN_REACHES = 3.0
+SKIN_RADII = 0.1
+# The skin test allows this much, relative to a body's coordinates (m), for the rounding of
+# the distances it compares: a few ulps, about 1e-15 of the coordinates, times 100.
+SKIN_ROUNDING = 1e-13
 # A contact that does not push and whose normal speed exceeds its target by more than this many
 # times the last sweep's largest speed change is idle: sweeps skip it until the rest converge.
 IDLE_MARGIN = 10.0
