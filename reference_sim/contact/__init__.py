@@ -12,7 +12,8 @@ Modules, in the order a step uses them:
 - `settings`: the tuned constants and `describe`, the solver's description for a run manifest.
 - `buffers`: `ContactBuffers`, the work space of a run, and the names of its counters.
 - `frames`: body frames, particle positions, how far a body can move in a step.
-- `candidates`, `grid`: the broad phase, pair by pair or on a uniform grid.
+- `candidates`, `grid`, `pair_list`: the broad phase, pair by pair, on a uniform grid, or from
+  the grid's pairs kept between steps (a pile's).
 - `rows`: assembly of gaps, Jacobian rows and inverse masses; standby and waking.
 - `impulses`: a contact's speed along a row, applying and projecting impulses.
 - `warm_start`: starting from last step's impulses and their trend.
