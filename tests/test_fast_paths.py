@@ -197,8 +197,8 @@ def test_a_spread_out_grid_is_coarsened_to_its_cell_budget():
 
 
 def test_grid_matches_pairwise_on_far_flung_and_nan_bodies():
-    """A body 1e9 m away coarsens the grid to a few cells; a NaN one leaves no grid (every pair
-    tested): the pairs are the pairwise ones either way."""
+    """A body 1e9 m away coarsens the grid to a few cells; a NaN centre or reach leaves no grid
+    (every pair tested): the pairs are the pairwise ones either way."""
     model, state = _state(crowd())
     reach = _reach(model, state, 0.005)
     far = state.x.copy()
@@ -207,6 +207,12 @@ def test_grid_matches_pairwise_on_far_flung_and_nan_bodies():
     broken = state.x.copy()
     broken[3] = np.nan
     np.testing.assert_array_equal(grid_pairs(model, broken, reach), all_pairs(model, broken, reach))
+    # a NaN reach (a diverged body's speed) pairs its body with every other, as pair by pair
+    broken_reach = reach.copy()
+    broken_reach[3] = np.nan
+    every = all_pairs(model, state.x, broken_reach)
+    assert np.sum((every == 3).any(axis=1)) == len(reach) - 1
+    np.testing.assert_array_equal(grid_pairs(model, state.x, broken_reach), every)
 
 
 @pytest.mark.parametrize("integrator", ["euler", "splitting"])
@@ -245,8 +251,9 @@ def test_pair_list_is_found_again_for_nan_bodies():
     out = np.empty((nb * nb, 2), dtype=np.int64)
     found, _ = current_pairs(model.bound_radius, state.x, reach, pair_list(nb), out)
     assert current_pairs(model.bound_radius, state.x, reach, found, out)[0].x0 is found.x0
-    for broken_x, broken_reach in ((state.x.copy(), reach), (state.x, reach.copy())):
-        broken_x[3, 0], broken_reach[3] = np.nan, np.nan
+    nan_x, nan_reach = state.x.copy(), reach.copy()
+    nan_x[3, 0], nan_reach[3] = np.nan, np.nan
+    for broken_x, broken_reach in ((nan_x, reach), (state.x, nan_reach)):
         again, n = current_pairs(model.bound_radius, broken_x, broken_reach, found, out)
         assert again.x0 is not found.x0
         np.testing.assert_array_equal(out[:n], grid_pairs(model, broken_x, broken_reach))

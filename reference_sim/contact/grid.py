@@ -27,12 +27,15 @@ def _bin_spheres(radius, x, reach, cells, dims, keys, max_cells):
     """Each sphere's grid cell and its key (cells numbered along z, then y, then x), on cubic
     cells as wide as the largest interaction distance, doubled until there are at most
     `max_cells`; returns the number of cells, or 0 if the grid would be unbounded (NaN or
-    infinite coordinates)."""
+    infinite coordinates, radii or reaches: `max` would pass over a NaN one)."""
     nb = x.shape[0]
     cell = 0.0
     for b in range(nb):
-        cell = max(cell, 2.0 * (radius[b] + reach[b]))
-    if not (cell > 0.0 and math.isfinite(cell)):
+        width = 2.0 * (radius[b] + reach[b])
+        if not math.isfinite(width):
+            return 0
+        cell = max(cell, width)
+    if not cell > 0.0:
         return 0
     for k in range(3):
         for b in range(nb):
@@ -121,7 +124,8 @@ def sphere_pairs(radius, x, reach, capacity):
     as wide as the largest interaction distance (`_bin_spheres`) and only spheres in
     neighbouring cells are tested, so the cost grows linearly with their number. Same result
     (tested), so the simulation is bit-equal either way. Without a bounded grid (NaN or infinite
-    coordinates) it tests every pair. `capacity`: the pairs expected (more take a second pass).
+    coordinates or reaches) it tests every pair. `capacity`: the pairs expected (more take a
+    second pass).
     """
     nb = x.shape[0]
     dims = np.ones(3, dtype=np.int64)

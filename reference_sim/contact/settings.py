@@ -78,7 +78,8 @@ GRID_CELLS_PER_BODY = 8
 # A pile's body pairs are found again when some body's reach plus its move exceeds its skin
 # (`pair_list`): SKIN_REACHES of its reach when found plus SKIN_RADII of its bounding radius.
 # Wider skins are found again less often but list more pairs, and the grid's cells grow with
-# the widest: in `cube_rain_1000` these cost least of 2 to 4 and 0.05 to 0.2 (docs/).
+# the widest: of 2 to 4 reaches and 0.05 to 0.2 radii these cost least in `cube_rain_1000`
+# (docs/contact-solver.md, "Broad phase").
 SKIN_REACHES = 3.0
 SKIN_RADII = 0.1
 # The skin test allows this much, relative to a body's coordinates (m), for the rounding of
