@@ -114,7 +114,7 @@ def find_candidates_into(model, x, v, dt, kick, buf):
     estimate. Returns their count, which may exceed the capacity (then nothing else is valid),
     or minus the number of body pairs if those exceed theirs.
 
-    Body pairs: `buf.pairs[:buf.counts[COUNT_PAIRS]]` if the caller found them (`grid_pairs`),
+    Body pairs: `buf.pairs[:buf.counts[COUNT_PAIRS]]` if the caller found them (`pair_list`),
     else found here pair by pair. Needs `buf.rot` and `buf.omega`.
     """
     reach_into(model, v, buf.omega, dt, kick, buf.reach)

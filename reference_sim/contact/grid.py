@@ -2,7 +2,9 @@
 the bodies into cells), the same pairs in the same order as testing every pair, in linear time.
 
 The grid bins spheres (centres, radii, reaches): the rigid integrators' bodies by their bounding
-spheres (`grid_pairs`), and the seed's particles (`sphere_pairs`, `reference_sim.seed`)."""
+spheres grown by their skins (`pair_list`, which keeps the pairs between steps; `grid_pairs` at
+the step's reach is what it must equal), and the seed's particles (`sphere_pairs`,
+`reference_sim.seed`)."""
 
 import math
 
