@@ -50,12 +50,9 @@ def current_pairs(radius, x, reach, found, out):
     """The pairs `grid_pairs` finds for spheres `radius` at `x` moving `reach`, written to `out`
     while it has room, from the list `found` (`PairList`), found again first if it no longer
     holds them; returns the list and the pairs' count."""
-    nb = x.shape[0]
     if not _holds(x, reach, found):
-        skin = np.empty(nb)
-        for b in range(nb):
-            skin[b] = SKIN_REACHES * reach[b] + SKIN_RADII * radius[b]
-        pairs = sphere_pairs(radius, x, skin, max(out.shape[0], 2 * nb + 16))
+        skin = SKIN_REACHES * reach + SKIN_RADII * radius
+        pairs = sphere_pairs(radius, x, skin, max(out.shape[0], 2 * x.shape[0] + 16))
         found = PairList(pairs, x.copy(), skin)
     n = 0
     for p in range(found.pairs.shape[0]):
