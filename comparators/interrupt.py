@@ -27,27 +27,68 @@ from contextlib import contextmanager
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for a command stopped by Ctrl-C
 TERM_GRACE_S = 0.5  # a drawing worker finishes its current Python statement in milliseconds
 _PR_SET_PDEATHSIG = 1  # linux/prctl.h
-_interrupted = False
+# s from an interrupt Python dropped to SIGINT sent again, for the hook that dropped it to
+# return first; one that lands in a hook again is dropped and sent again.
+RESEND_S = 0.01
+_interrupted = False  # Ctrl-C came within `catching_interrupts`
+_catching = False  # within `catching_interrupts`
+_dropped = False  # its KeyboardInterrupt was dropped by Python and not raised since
 
 
 @contextmanager
 def catching_interrupts():
     """Within the block Ctrl-C raises KeyboardInterrupt as usual and is remembered for `check`
-    (in the main thread; elsewhere signals cannot be handled and nothing changes)."""
-    global _interrupted
+    (in the main thread; elsewhere signals cannot be handled and nothing changes).
+
+    Python drops, with a traceback on stderr, an exception raised in a function it calls from C
+    code: a Ctrl-C that lands in an at-fork hook (logging's locks, while a pool forks its
+    workers) would print a traceback and stop the command only at the next `check`. Within the
+    block such a KeyboardInterrupt is dropped quietly and SIGINT sent again RESEND_S later, out
+    of the hook (`_interrupt_dropped`)."""
+    global _interrupted, _catching
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    _interrupted = False
+    _interrupted, _catching = False, True
     previous = signal.signal(signal.SIGINT, _on_sigint)
+    previous_hook = sys.unraisablehook
+
+    def unraisable(dropped) -> None:
+        if not _interrupt_dropped(dropped):
+            previous_hook(dropped)
+
+    sys.unraisablehook = unraisable
     try:
         yield
     finally:
+        _catching = False
         signal.signal(signal.SIGINT, previous)
+        sys.unraisablehook = previous_hook
+
+
+def _interrupt_dropped(dropped) -> bool:
+    """If `dropped` (what `sys.unraisablehook` receives) is the KeyboardInterrupt `_on_sigint`
+    raised, have SIGINT sent again RESEND_S later, from another thread (sent from here, its
+    handler would run, and raise, before the hook returns), and return True."""
+    global _dropped
+    if not (_interrupted and issubclass(dropped.exc_type, KeyboardInterrupt)):
+        return False
+    _dropped = True
+    resend = threading.Timer(RESEND_S, _resend)
+    resend.daemon = True
+    resend.start()
+    return True
+
+
+def _resend() -> None:
+    """SIGINT again for an interrupt that was dropped and not raised since (`check` raises it
+    too), while the block that handles it lasts."""
+    if _catching and _dropped:
+        os.kill(os.getpid(), signal.SIGINT)
 
 
 def _on_sigint(signum, frame):
-    global _interrupted
+    global _interrupted, _dropped
     _interrupted = True
     # numba's compiler calls back into Python through ctypes (llvmlite's object cache), and an
     # exception raised in such a callback is printed and dropped: there, only remember it.
@@ -55,12 +96,15 @@ def _on_sigint(signum, frame):
         if "llvmlite" in frame.f_code.co_filename:
             return
         frame = frame.f_back
+    _dropped = False  # raised now; `_interrupt_dropped` sets it again if this one is dropped too
     raise KeyboardInterrupt
 
 
 def check() -> None:
     """Raise KeyboardInterrupt if Ctrl-C came while it could not be raised (see `_on_sigint`)."""
+    global _dropped
     if _interrupted:
+        _dropped = False
         raise KeyboardInterrupt
 
 

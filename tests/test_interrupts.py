@@ -203,3 +203,42 @@ def test_in_child_returns_the_result_and_raises_the_exception():
     assert in_child(sorted, [3, 1, 2], reverse=True) == [3, 2, 1]
     with pytest.raises(ZeroDivisionError):
         in_child(divmod, 1, 0)
+
+
+# A Ctrl-C that lands in an at-fork hook (here one that interrupts itself; in a command, logging's
+# lock release while a pool forks its workers) raises KeyboardInterrupt where Python drops it,
+# with a traceback. Within `catching_interrupts` it must still stop the block, and quietly.
+INTERRUPTED_IN_A_FORK_HOOK = """
+import os, signal, time
+from comparators.interrupt import catching_interrupts
+
+def hook():
+    os.kill(os.getpid(), signal.SIGINT)
+    for _ in range(10000):  # the handler runs here, inside the hook
+        pass
+
+os.register_at_fork(after_in_parent=hook)
+try:
+    with catching_interrupts():
+        child = os.fork()
+        if child == 0:
+            os._exit(0)
+        os.waitpid(child, 0)
+        time.sleep(30)
+    print("not interrupted")
+except KeyboardInterrupt:
+    print("interrupted")
+"""
+
+
+def test_interrupt_dropped_in_a_fork_hook_still_stops_quietly():
+    path = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
+    done = subprocess.run(
+        [sys.executable, "-c", INTERRUPTED_IN_A_FORK_HOOK],
+        env={**os.environ, "PYTHONPATH": path},
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.stdout.strip() == "interrupted", done.stderr
+    assert done.stderr == ""
