@@ -40,13 +40,18 @@ def slow_case(directory: Path) -> Path:
     return path
 
 
+def from_sources() -> dict[str, str]:
+    """The environment of a Python that imports this checkout's sources."""
+    path = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
+    return {**os.environ, "PYTHONPATH": path}
+
+
 def start(*args: str, cwd: Path) -> subprocess.Popen:
     """The command as a user runs it, from this checkout's sources."""
-    path = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
     return subprocess.Popen(
         [sys.executable, "-m", "reports.cli", *args],
         cwd=cwd,
-        env={**os.environ, "PYTHONPATH": path},
+        env=from_sources(),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
@@ -232,10 +237,9 @@ except KeyboardInterrupt:
 
 
 def test_interrupt_dropped_in_a_fork_hook_still_stops_quietly():
-    path = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
     done = subprocess.run(
         [sys.executable, "-c", INTERRUPTED_IN_A_FORK_HOOK],
-        env={**os.environ, "PYTHONPATH": path},
+        env=from_sources(),
         capture_output=True,
         text=True,
         timeout=60,
