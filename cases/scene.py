@@ -40,7 +40,11 @@ Num = Annotated[float, Field(strict=True, allow_inf_nan=False), AfterValidator(_
 PositiveNum = Annotated[Num, Field(gt=0)]
 Vec3 = tuple[Num, Num, Num]
 Particle = tuple[Num, Num, Num, PositiveNum]  # x, y, z, mass
-Name = Annotated[str, Field(strict=True, pattern=r"^[A-Za-z0-9_.-]+$")]
+# A case's name becomes part of file names (the report's figures/<case>_work_precision.png,
+# written through a temporary ".<file>.XXXXXXXX", 29 bytes more), which file systems cap at 255
+# bytes: names of at most this many characters leave room for every figure's suffix.
+NAME_MAX_LENGTH = 100
+Name = Annotated[str, Field(strict=True, pattern=r"^[A-Za-z0-9_.-]+$", max_length=NAME_MAX_LENGTH)]
 
 _CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False)
 

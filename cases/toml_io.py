@@ -114,7 +114,8 @@ _ROW_SHAPES = {"particles": "4 numbers (x, y, z, mass)"}
 _VECTOR_SHAPE = "3 numbers (x, y, z)"
 
 # What each pydantic error type means in a case file. Fields: where ("key 'K': " or "" for the
-# whole scene), key, got (the offending value), allowed, shape, count, error, and the error's ctx.
+# whole scene), key, got (the offending value), allowed, shape, count, length, error, and the
+# error's ctx.
 _MESSAGES = {
     "missing": "missing key '{key}'",
     "unexpected_keyword_argument": "unknown key '{key}' (expected one of: {allowed})",
@@ -129,6 +130,10 @@ _MESSAGES = {
     "less_than_equal": "{where}expected a number <= {le:g}, got {got}",
     "string_type": "{where}expected a string, got {got}",
     "string_pattern_mismatch": "{where}expected a name matching {pattern}, got {got}",
+    "string_too_long": (
+        "{where}expected a name of at most {max_length} characters (names become file names), "
+        "got one of {length}"
+    ),
     "tuple_type": "{where}expected an array, got {got}",
     "too_short": "{where}expected at least {min_length} item(s), got {got}",
     "dataclass_type": "{where}expected a table, got {got}",
@@ -253,6 +258,7 @@ def _describe(error: dict[str, Any]) -> str:
         "key": key,
         "got": _show(value),
         "count": len(value) if isinstance(value, list | tuple) else _show(value),
+        "length": len(value) if isinstance(value, str) else None,
         "shape": _ROW_SHAPES.get(names[-1] if names else "", _VECTOR_SHAPE),
         "allowed": ", ".join(_keys(_TABLES.get(names[-2] if len(names) > 1 else "", Scene))),
         "msg": error["msg"],

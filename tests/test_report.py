@@ -13,6 +13,7 @@ import pandas as pd
 import pytest
 
 from cases import CATALOG
+from cases.scene import NAME_MAX_LENGTH
 from comparators import ENGINES, run
 from comparators.bench import BENCH_COLUMNS, throughput_from_results
 from comparators.outcomes import outcomes
@@ -280,6 +281,16 @@ def test_report_files(sweep, report):
     assert sorted(figures) == sorted(expected)
     assert all((out / name).stat().st_size > 10_000 for name in figures)
     assert not [p.name for p in out.iterdir() if p.name.startswith(".")], "temporary files left"
+
+
+def test_a_case_of_the_longest_name_allowed_gets_its_figures(tmp_path):
+    """Figures are named after their case and written through a temporary file: at
+    NAME_MAX_LENGTH characters both names still fit the file systems' 255 bytes."""
+    scene = dataclasses.replace(SCENE, name="x" * NAME_MAX_LENGTH)
+    written = write_report(build_result([scene], PAIRS[:1], DTS[:3]), tmp_path, "pytest")
+    kinds = ("drift", "convergence", "work_precision", "stability")
+    figures = [name for name in written if name.startswith(f"figures/{scene.name}_")]
+    assert sorted(figures) == sorted(f"figures/{scene.name}_{kind}.png" for kind in kinds)
 
 
 def test_results_files_have_one_row_per_run(sweep, report):
