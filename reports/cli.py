@@ -56,8 +56,13 @@ EXIT_PARITY = 3
 def _scenes(names: list[str] | None) -> list:
     """The named cases (catalog names or .toml files), or the whole catalog; names distinct."""
     scenes = [resolve_case(c) for c in names] if names else list(CATALOG.values())
-    if len({s.name for s in scenes}) != len(scenes):
-        raise InputError("--cases: two cases have the same name: expected distinct cases")
+    names_seen = [s.name for s in scenes]
+    twice = sorted({n for n in names_seen if names_seen.count(n) > 1})
+    if twice:
+        raise InputError(
+            f"--cases: more than one case is named {', '.join(map(repr, twice))}: expected "
+            "cases of distinct names"
+        )
     return scenes
 
 
