@@ -227,6 +227,7 @@ class Scene:
         names = [b.name for b in self.bodies]
         if len(set(names)) != len(names):
             raise ValueError(f"body names must be unique, got {names}")
+        self._check_particles_in_front_of_planes()
         g = np.linalg.norm(self.gravity)
         for body in self.bodies:
             weight = body.mass * g
@@ -237,6 +238,22 @@ class Scene:
                 weight * np.linalg.norm(body.com),
                 "gravity",
             )
+
+    def _check_particles_in_front_of_planes(self) -> None:
+        """ValueError naming the first particle whose centre starts behind a plane: every engine
+        would then be judged to have tunnelled (`comparators.verdict`), for the scene's fault."""
+        for j, plane in enumerate(self.planes):
+            for k, body in enumerate(self.bodies):
+                side = (body.positions - plane.point) @ plane.unit_normal
+                behind = np.flatnonzero(side < 0)
+                if behind.size:
+                    i = int(behind[0])
+                    raise ValueError(
+                        f"key 'bodies[{k}].particles[{i}]': the centre of a particle of body "
+                        f"{body.name!r} starts {-side[i]:.3g} m behind planes[{j}] (point "
+                        f"{list(plane.point)}, normal {list(plane.normal)}): expected every "
+                        "particle's centre on the side its normal points to"
+                    )
 
     @property
     def has_contact(self) -> bool:
