@@ -25,16 +25,18 @@ VERDICT_PHRASES = {
 # told: the rebound ratio within 2 % of e, the stopping distance and the slope acceleration within
 # 1 % (the reference simulator's own gates, tests/test_hard_cases.py, which every rigid
 # integrator meets; a zero closed form, as a slope acceleration where the body sticks, is
-# judged by `slides` instead); a resting height within 1 mm and a creep below 1 mm (ten times
-# the 1e-4 m by which soft contacts settle); `slides` (1 or 0) must match.
+# judged by `slides` instead); a resting height within 1 mm, a creep and a sliding body's lift
+# off its plane below 1 mm (ten times the 1e-4 m by which soft contacts settle); `slides` (1 or
+# 0) must match.
 RELATIVE_TOLERANCES = {"rebound_ratio": 0.02, "stopping_distance": 0.01, "slope_acceleration": 0.01}
-ABSOLUTE_TOLERANCES = {"rest_com_height": 1e-3, "creep": 1e-3, "slides": 0.5}
+ABSOLUTE_TOLERANCES = {"rest_com_height": 1e-3, "creep": 1e-3, "lift": 1e-3, "slides": 0.5}
 QUANTITY_NAMES = {
     "rebound_ratio": "rebound ratio",
     "stopping_distance": "stopping distance",
     "slope_acceleration": "slope acceleration",
     "rest_com_height": "rest height",
     "creep": "creep",
+    "lift": "lift",
     "slides": "slides",
 }
 # A body without contact conserves its energy exactly; a drift above a tenth at the default dt
@@ -62,10 +64,10 @@ def at_default_dt(table: pd.DataFrame, scenes: dict[str, Scene]) -> pd.DataFrame
 
 
 def _values(items, fmt: str) -> str:
-    """The items' values as "low to high" (one value when they agree)."""
+    """The items' values as "low to high" (one value when they read the same)."""
     values = [i.value for i in items]
-    low, high = min(values), max(values)
-    return format(low, fmt) if np.isclose(low, high) else f"{low:{fmt}} to {high:{fmt}}"
+    low, high = format(min(values), fmt), format(max(values), fmt)
+    return low if low == high else f"{low} to {high}"
 
 
 @dataclass(frozen=True)
@@ -142,6 +144,10 @@ def outcome_findings(
                 return text + (
                     ", at e² (restitution applied twice)" if all(i.squared for i in mine) else ""
                 )
+        elif quantity == "lift":
+
+            def describe(mine):
+                return f"lifts {_values(mine, '.2g')} m off the plane it should slide on"
         elif quantity == "slides":
 
             def describe(mine):

@@ -13,7 +13,12 @@ import pytest
 from cases.catalog import CATALOG
 from comparators.sweep import RESULT_COLUMNS, SweepResult
 from comparators.verdict import ENERGY_LOSS_LIMIT
-from reports.findings import ENERGY_DRIFT_NOTE, RELATIVE_TOLERANCES, findings
+from reports.findings import (
+    ABSOLUTE_TOLERANCES,
+    ENERGY_DRIFT_NOTE,
+    RELATIVE_TOLERANCES,
+    findings,
+)
 from reports.sections.summary import summary_section
 
 CASES = ("tumbling_box", "bounce", "slide")
@@ -110,6 +115,17 @@ def test_a_rebound_is_found_only_beyond_its_tolerance(miss, found):
     assert not any("e²" in f.text for f in got)
 
 
+@pytest.mark.parametrize("lift, found", [(0.5 * ABSOLUTE_TOLERANCES["lift"], False), (0.07, True)])
+def test_a_body_that_leaves_the_plane_it_slides_on_is_found(lift, found):
+    results, outcomes, fits = right_sweep()
+    hop = outcomes[at(outcomes, "slide", "mujoco", "Euler")].assign(
+        quantity="lift", measured=lift, expected=0.0, error=lift, unit="m"
+    )
+    got = findings(results, pd.concat([outcomes, hop], ignore_index=True), SCENES, fits)
+    said = "**mujoco** Euler: lifts 0.07 m off the plane it should slide on"
+    assert [(f.kind, f.cases, f.text) for f in got] == ([("lift", ("slide",), said)] * found)
+
+
 def test_integrators_of_one_engine_share_a_finding():
     results, outcomes, fits = right_sweep()
     for integrator in ("Euler", "RK4"):
@@ -117,6 +133,14 @@ def test_integrators_of_one_engine_share_a_finding():
     (found,) = findings(results, outcomes, SCENES, fits)
     assert found.text.startswith("**mujoco** Euler, RK4: stopping distance")
     assert "+6%" in found.text
+
+
+def test_values_that_read_the_same_are_said_once():
+    results, outcomes, fits = right_sweep()
+    for integrator, distance in (("Euler", 0.9521), ("RK4", 0.9549)):  # +5.8 % and +6.1 %
+        outcomes.loc[at(outcomes, "slide", "mujoco", integrator), "measured"] = distance
+    (found,) = findings(results, outcomes, SCENES, fits)
+    assert found.text.endswith("stopping distance off its closed form by +6%")
 
 
 def test_energy_drift_is_a_finding_without_contact_only():
