@@ -180,6 +180,7 @@ def _stopping_rows(run: RunData) -> list[tuple]:
             )
         if expected.stopping_time is not None:
             rows.append((_label(scene, body, "stopping_time"), time, expected.stopping_time, "s"))
+        rows.append((_label(scene, body, "lift"), lift(run, k), 0.0, "m"))
     return rows
 
 
@@ -211,6 +212,19 @@ def slope_acceleration(run: RunData, body_index: int) -> tuple[float, bool]:
     return float(acceleration), slides
 
 
+def lift(run: RunData, body_index: int) -> float:
+    """The largest clearance (m) of a body's lowest particle surface above the plane it starts
+    on (`plane_under`) over the run: the stopping and slope closed forms have it slide on that
+    plane throughout, clearance 0; a body that hops off it lifts by its hops' height. NaN: no
+    such plane, or no rigid sample."""
+    plane = plane_under(run.scene, run.scene.bodies[body_index])
+    if plane is None:
+        return np.nan
+    clearance = run.clearance(body_index, plane)
+    known = clearance[np.isfinite(clearance)]
+    return float(max(known.max(), 0.0)) if len(known) else np.nan
+
+
 def _slope_rows(run: RunData) -> list[tuple]:
     scene = run.scene
     expected = scene.expected
@@ -222,6 +236,7 @@ def _slope_rows(run: RunData) -> list[tuple]:
         a0 = expected.slope_acceleration
         rows.append((_label(scene, body, "slope_acceleration"), acceleration, a0, "m/s^2"))
         rows.append((_label(scene, body, "slides"), float(slides), float(a0 > 0), "1/0"))
+        rows.append((_label(scene, body, "lift"), lift(run, k), 0.0, "m"))
     return rows
 
 

@@ -82,6 +82,7 @@ OUTCOME_QUANTITIES = (
     "stopping_time",
     "slope_acceleration",
     "slides",
+    "lift",
     "creep",
     "jitter_rms",
     "penetration",

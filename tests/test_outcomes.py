@@ -278,7 +278,10 @@ def test_a_landing_without_rebound_has_ratio_zero():
     assert np.isnan(measured(table, "apex_height_1"))
 
 
-def test_stopping_distance_and_time_of_uniform_deceleration():
+@pytest.mark.parametrize("hop", [0.0, 0.05])
+def test_stopping_distance_and_time_of_uniform_deceleration(hop):
+    """With `hop` (m) the cube also leaves the floor by that much for a while: `lift` says so,
+    and the stopping figures, along the floor, are unchanged."""
     v0, mu = 3.0, 0.5
     a = mu * G
     stop, distance = v0 / a, v0**2 / (2 * a)  # 0.6 s, 0.9 m
@@ -292,11 +295,12 @@ def test_stopping_distance_and_time_of_uniform_deceleration():
     s = np.where(moving, v0 * t - 0.5 * a * t**2, distance)
     speed = np.where(moving, v0 - a * t, 0.0)
     zeros = np.zeros_like(t)
-    x = np.stack([s, zeros, np.full_like(t, REST)], axis=1)
+    x = np.stack([s, zeros, REST + hop * ((t > 0.2) & (t < 0.3))], axis=1)
     v = np.stack([speed, zeros, zeros], axis=1)
     table = outcomes(trajectory(scene, t, x, v), scene)
     assert measured(table, "stopping_distance") == pytest.approx(distance, rel=EXACT_RTOL)
     assert measured(table, "stopping_time") == pytest.approx(stop, rel=EXACT_RTOL)
+    assert measured(table, "lift") == pytest.approx(hop, abs=EXACT_ATOL)
     assert measured(table, "creep") == 0.0  # launched, then still: measured from its stop
 
 
@@ -311,8 +315,9 @@ def incline_scene(degrees: float, acceleration: float) -> tuple[Scene, np.ndarra
     body = Body(name="cube", particle_radius=RADIUS, particles=tuple(map(tuple, rows)))
     plane = dataclasses.replace(floor(), normal=(s, 0.0, c))
     scene = dataclasses.replace(
-        floor_scene(Expected(slope_acceleration=acceleration), bodies=(body,), duration=2.0),
+        floor_scene(Expected(slope_acceleration=acceleration), duration=2.0),
         planes=(plane,),
+        bodies=(body,),
     )
     return scene, np.array([c, 0.0, -s])
 
@@ -329,6 +334,7 @@ def test_slope_acceleration_slides_or_sticks(degrees, mu):
     rows = outcomes(trajectory(scene, t, x, v), scene).set_index("quantity")
     assert rows.loc["slope_acceleration", "measured"] == pytest.approx(a, rel=EXACT_RTOL, abs=1e-12)
     assert rows.loc["slides", "measured"] == rows.loc["slides", "expected"] == float(slides)
+    assert rows.loc["lift", "measured"] == pytest.approx(0.0, abs=EXACT_ATOL)
 
 
 def test_creep_jitter_and_steady_penetration_of_a_resting_body():
