@@ -54,15 +54,27 @@ EXIT_PARITY = 3
 
 
 def _scenes(names: list[str] | None) -> list:
-    """The named cases (catalog names or .toml files), or the whole catalog; names distinct."""
+    """The named cases (catalog names or .toml files), or the whole catalog; names distinct,
+    also as the report's section links read them (`anchor`: letter case, '.' and repeated '-'
+    dropped), which a case-insensitive disk's figure files follow."""
+    from reports.sections.layout import anchor, case_title
+
     scenes = [resolve_case(c) for c in names] if names else list(CATALOG.values())
-    names_seen = [s.name for s in scenes]
-    twice = sorted({n for n in names_seen if names_seen.count(n) > 1})
-    if twice:
-        raise InputError(
-            f"--cases: more than one case is named {', '.join(map(repr, twice))}: expected "
-            "cases of distinct names"
-        )
+    by_link: dict[str, list[str]] = {}
+    for scene in scenes:
+        by_link.setdefault(anchor(case_title(scene.name)), []).append(scene.name)
+    for link, same in by_link.items():
+        if len(same) > 1 and same[0] == same[1]:
+            raise InputError(
+                f"--cases: more than one case is named {same[0]!r}: expected cases of distinct "
+                "names"
+            )
+        if len(same) > 1:
+            raise InputError(
+                f"--cases: cases {same[0]!r} and {same[1]!r} would share the report's section "
+                f"link #{link} and, on a case-insensitive disk, their figure files: expected "
+                "names that differ in more than letter case, '.' and repeated '-'"
+            )
     return scenes
 
 
