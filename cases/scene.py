@@ -242,18 +242,23 @@ class Scene:
     def _check_particles_in_front_of_planes(self) -> None:
         """ValueError naming the first particle whose centre starts behind a plane: every engine
         would then be judged to have tunnelled (`comparators.verdict`), for the scene's fault."""
+        if not self.planes:
+            return
+        points = np.concatenate([body.positions for body in self.bodies])
+        counts = [len(body.particles) for body in self.bodies]
+        first = np.cumsum([0, *counts])  # each body's first row in `points`
         for j, plane in enumerate(self.planes):
-            for k, body in enumerate(self.bodies):
-                side = (body.positions - plane.point) @ plane.unit_normal
-                behind = np.flatnonzero(side < 0)
-                if behind.size:
-                    i = int(behind[0])
-                    raise ValueError(
-                        f"key 'bodies[{k}].particles[{i}]': the centre of a particle of body "
-                        f"{body.name!r} starts {-side[i]:.3g} m behind planes[{j}] (point "
-                        f"{list(plane.point)}, normal {list(plane.normal)}): expected every "
-                        "particle's centre on the side its normal points to"
-                    )
+            side = (points - plane.point) @ plane.unit_normal
+            behind = np.flatnonzero(side < 0)
+            if behind.size:
+                k = int(np.searchsorted(first, behind[0], side="right")) - 1
+                i = int(behind[0] - first[k])
+                raise ValueError(
+                    f"key 'bodies[{k}].particles[{i}]': the centre of a particle of body "
+                    f"{self.bodies[k].name!r} starts {-side[behind[0]]:.3g} m behind planes[{j}] "
+                    f"(point {list(plane.point)}, normal {list(plane.normal)}): expected every "
+                    "particle's centre on the side its normal points to"
+                )
 
     @property
     def has_contact(self) -> bool:

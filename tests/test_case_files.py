@@ -1,9 +1,11 @@
 """TOML case files: catalog scenes round-trip, and every kind of bad input is one clear line."""
 
+import dataclasses
 import re
 from pathlib import Path
 
 import pytest
+from pydantic import ValidationError
 
 from cases import CATALOG, InputError, load_scene, resolve_case, scene_to_toml
 from cases.toml_io import MAX_TOML_BYTES
@@ -239,3 +241,14 @@ def test_resolve_case_by_path(tmp_path):
 def test_resolve_case_unknown(arg, message):
     with pytest.raises(InputError, match=re.escape(message)):
         resolve_case(arg)
+
+
+def test_a_particle_behind_a_plane_is_named_by_its_body_and_index():
+    stack = CATALOG["cube_stack"]
+    body = stack.bodies[3]
+    rows = [list(row) for row in body.particles]
+    rows[6][2] = -0.25  # below the floor, whose normal is +z
+    sunk = dataclasses.replace(body, particles=tuple(map(tuple, rows)))
+    bodies = (*stack.bodies[:3], sunk, *stack.bodies[4:])
+    with pytest.raises(ValidationError, match=r"bodies\[3\]\.particles\[6\].* 0\.25 m behind"):
+        dataclasses.replace(stack, bodies=bodies)
