@@ -177,3 +177,11 @@ def test_the_summary_shows_verdicts_and_findings():
     row = next(line for line in text.splitlines() if line.startswith("| [bounce](#case-bounce)"))
     assert "verdict-diverged" in row and "Euler" in row and "verdict-ok" in row
     assert "- **mujoco** Euler: diverged at the default dt ([bounce](#case-bounce))" in text
+
+
+def test_the_summary_shows_no_number_where_nothing_was_measured():
+    results, outcomes, fits = right_sweep()
+    outcomes.loc[at(outcomes, "slide", "mujoco", "RK4"), "measured"] = np.nan  # never stops
+    text = "\n".join(summary_section(_result(results, outcomes), fits))
+    row = next(line for line in text.splitlines() if line.startswith("| [slide](#case-slide)"))
+    assert "nan" not in row and "| – |" in row

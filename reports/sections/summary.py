@@ -69,7 +69,11 @@ def verdict_table(result: SweepResult) -> pd.DataFrame:
 
 
 def _outcome_cell(row) -> str:
-    """ "measured (relative error)", or the absolute error against a zero closed form."""
+    """ "measured (relative error)", the absolute error against a zero closed form, or
+    EMPTY_CELL where nothing was measured (a body still sliding at the end has no stopping
+    distance), as the contact validation table shows it."""
+    if pd.isna(row.measured):
+        return EMPTY_CELL
     if row.expected == 0:
         return f"{row.measured:.3g} ({row.error:+.2g} {row.unit})"
     return f"{row.measured:.4g} ({row.measured / row.expected - 1:+.1%})"
