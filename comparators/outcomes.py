@@ -180,7 +180,6 @@ def _stopping_rows(run: RunData) -> list[tuple]:
             )
         if expected.stopping_time is not None:
             rows.append((_label(scene, body, "stopping_time"), time, expected.stopping_time, "s"))
-        rows.append((_label(scene, body, "lift"), lift(run, k), 0.0, "m"))
     return rows
 
 
@@ -225,6 +224,23 @@ def lift(run: RunData, body_index: int) -> float:
     return float(max(known.max(), 0.0)) if len(known) else np.nan
 
 
+def _lift_rows(run: RunData) -> list[tuple]:
+    """Per body, its `lift` against 0 where the scene states a stopping or slope closed form,
+    both of which assume it slides on its plane."""
+    scene, expected = run.scene, run.scene.expected
+    stated = expected is not None and any(
+        value is not None
+        for value in (
+            expected.stopping_distance,
+            expected.stopping_time,
+            expected.slope_acceleration,
+        )
+    )
+    if not stated:
+        return []
+    return [(_label(scene, b, "lift"), lift(run, k), 0.0, "m") for k, b in enumerate(scene.bodies)]
+
+
 def _slope_rows(run: RunData) -> list[tuple]:
     scene = run.scene
     expected = scene.expected
@@ -236,7 +252,6 @@ def _slope_rows(run: RunData) -> list[tuple]:
         a0 = expected.slope_acceleration
         rows.append((_label(scene, body, "slope_acceleration"), acceleration, a0, "m/s^2"))
         rows.append((_label(scene, body, "slides"), float(slides), float(a0 > 0), "1/0"))
-        rows.append((_label(scene, body, "lift"), lift(run, k), 0.0, "m"))
     return rows
 
 
@@ -446,6 +461,7 @@ MEASUREMENTS = (
     _bounce_rows,
     _stopping_rows,
     _slope_rows,
+    _lift_rows,
     _rest_rows,
     _stack_rows,
     _penetration_rows,

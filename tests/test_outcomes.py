@@ -337,6 +337,17 @@ def test_slope_acceleration_slides_or_sticks(degrees, mu):
     assert rows.loc["lift", "measured"] == pytest.approx(0.0, abs=EXACT_ATOL)
 
 
+def test_lift_is_one_row_where_both_sliding_closed_forms_are_stated():
+    scene, _ = incline_scene(35.0, 1.64)
+    both = dataclasses.replace(
+        scene, expected=Expected(slope_acceleration=1.64, stopping_distance=1.0)
+    )
+    t = np.arange(0.0, 2.0, 0.01)
+    x = np.tile(both.bodies[0].com, (len(t), 1))
+    table = outcomes(trajectory(both, t, x, np.zeros_like(x)), both)
+    assert (table["quantity"] == "lift").sum() == 1
+
+
 def test_creep_jitter_and_steady_penetration_of_a_resting_body():
     creep_speed, depth = 1e-4, 1e-3
     scene, traj = resting_cube_moving(depth=depth, creep_speed=creep_speed)
