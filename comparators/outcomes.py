@@ -1,6 +1,6 @@
 """Outcomes measured from any engine's trajectory and the scene: the quantities physics predicts
-in closed form (rebound ratio, apex heights, stopping distance and time, slope acceleration,
-rest, momentum, flip period), each against its expected value.
+in closed form (rebound ratio, apex heights, stopping distance and time, slope acceleration, a
+sliding body's path on its plane, rest, momentum, flip period), each against its expected value.
 
 Everything here reads the trajectory table (COM position and velocity, orientation, angular
 velocity per sample; `comparators.trajectory`) and the scene, never an engine's internals, so
@@ -49,6 +49,9 @@ SLOPE_SETTLE_FRACTION = 0.1
 # A stack stands while every body's COM stays within this of where it started (m): far beyond
 # soft-contact settling (1e-4 m), well below a tenth of a cube's edge.
 STAND_DISTANCE = 0.05
+# An in-plane component of gravity (a slope), or of a starting velocity across the downhill line,
+# smaller than this relative to the whole is the rounding of the scene's coordinates (~1e-16).
+DIRECTION_RTOL = 1e-12
 
 
 # ---- measurements ------------------------------------------------------------------------------
@@ -183,6 +186,21 @@ def _stopping_rows(run: RunData) -> list[tuple]:
     return rows
 
 
+def _in_plane(vector, plane: Plane) -> np.ndarray:
+    """The component of `vector` (or of each row of it) within `plane`."""
+    n = plane.unit_normal
+    vector = np.asarray(vector, dtype=float)
+    return vector - np.multiply.outer(vector @ n, n)
+
+
+def _downhill(scene: Scene, plane: Plane) -> np.ndarray | None:
+    """The unit direction of gravity's component within `plane`; None on a level plane."""
+    g = np.asarray(scene.gravity, dtype=float)
+    downhill = _in_plane(g, plane)
+    size = np.linalg.norm(downhill)
+    return downhill / size if size > DIRECTION_RTOL * np.linalg.norm(g) else None
+
+
 def slope_acceleration(run: RunData, body_index: int) -> tuple[float, bool]:
     """(acceleration (m/s^2), slides) of one body down the plane it starts on.
 
@@ -193,14 +211,9 @@ def slope_acceleration(run: RunData, body_index: int) -> tuple[float, bool]:
     direction under it.
     """
     plane = plane_under(run.scene, run.scene.bodies[body_index])
-    if plane is None:
+    downhill = None if plane is None else _downhill(run.scene, plane)
+    if downhill is None:
         return np.nan, False
-    n = plane.unit_normal
-    g = np.asarray(run.scene.gravity, dtype=float)
-    downhill = g - np.dot(g, n) * n
-    if np.linalg.norm(downhill) <= 1e-12 * np.linalg.norm(g):
-        return np.nan, False
-    downhill /= np.linalg.norm(downhill)
     a = run.arrays(body_index)
     t, s = a["t"], (a["x"] - a["x"][0]) @ downhill
     fit = t >= t[0] + SLOPE_SETTLE_FRACTION * (t[-1] - t[0])
@@ -224,9 +237,36 @@ def lift(run: RunData, body_index: int) -> float:
     return float(max(known.max(), 0.0)) if len(known) else np.nan
 
 
-def _lift_rows(run: RunData) -> list[tuple]:
-    """Per body, its `lift` against 0 where the scene states a stopping or slope closed form,
-    both of which assume it slides on its plane."""
+def sideways(run: RunData, body_index: int) -> float:
+    """The furthest (m) a body's COM strays, within the plane it starts on, from the straight
+    line the stopping and slope closed forms have it slide along: downhill on a slope, along
+    its starting velocity on a level plane (a body starting still there should stay put). NaN:
+    no such plane, or the line is not straight (a slope crossed by a starting velocity)."""
+    scene = run.scene
+    body = scene.bodies[body_index]
+    plane = plane_under(scene, body)
+    if plane is None:
+        return np.nan
+    start = _in_plane(body.velocity, plane)
+    line = _downhill(scene, plane)
+    if line is None:
+        speed = np.linalg.norm(start)
+        line = start / speed if speed > 0 else np.zeros(3)
+    elif np.linalg.norm(start - np.dot(start, line) * line) > DIRECTION_RTOL * np.linalg.norm(
+        start
+    ):
+        return np.nan
+    x = run.arrays(body_index)["x"]
+    shift = _in_plane(x - x[0], plane)
+    off = np.linalg.norm(shift - np.outer(shift @ line, line), axis=1)
+    known = off[np.isfinite(off)]
+    return float(known.max()) if len(known) else np.nan
+
+
+def _path_rows(run: RunData) -> list[tuple]:
+    """Per body, its `lift` off its plane and how far it strays `sideways`, both against 0,
+    where the scene states a stopping or slope closed form: both assume the body slides on its
+    plane along a straight line."""
     scene, expected = run.scene, run.scene.expected
     stated = expected is not None and any(
         value is not None
@@ -238,7 +278,11 @@ def _lift_rows(run: RunData) -> list[tuple]:
     )
     if not stated:
         return []
-    return [(_label(scene, b, "lift"), lift(run, k), 0.0, "m") for k, b in enumerate(scene.bodies)]
+    rows = []
+    for k, body in enumerate(scene.bodies):
+        rows.append((_label(scene, body, "lift"), lift(run, k), 0.0, "m"))
+        rows.append((_label(scene, body, "sideways"), sideways(run, k), 0.0, "m"))
+    return rows
 
 
 def _slope_rows(run: RunData) -> list[tuple]:
@@ -461,7 +505,7 @@ MEASUREMENTS = (
     _bounce_rows,
     _stopping_rows,
     _slope_rows,
-    _lift_rows,
+    _path_rows,
     _rest_rows,
     _stack_rows,
     _penetration_rows,

@@ -51,10 +51,12 @@ FLOORS = {
     "apex_height": 1e-3,  # m
     "stopping_time": 1e-3,  # s
     "flip_period": 1e-3,  # s
-    # rest and sliding: a micrometre of height, lift or depth (soft contacts settle 1e-5 m into
-    # the floor), a nanometre of creep or drift (rigid contacts stay put to 1e-15 m)
+    # rest and sliding: a micrometre of height, lift, sideways stray or depth (soft contacts
+    # settle 1e-5 m into the floor), a nanometre of creep or drift (rigid contacts stay put to
+    # 1e-15 m)
     "rest_com_height": 1e-6,  # m
     "lift": 1e-6,  # m
+    "sideways": 1e-6,  # m
     "penetration": 1e-6,  # m
     "max_penetration": 1e-6,  # m
     "creep": 1e-9,  # m

@@ -83,6 +83,7 @@ OUTCOME_QUANTITIES = (
     "slope_acceleration",
     "slides",
     "lift",
+    "sideways",
     "creep",
     "jitter_rms",
     "penetration",

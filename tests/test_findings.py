@@ -126,6 +126,19 @@ def test_a_body_that_leaves_the_plane_it_slides_on_is_found(lift, found):
     assert [(f.kind, f.cases, f.text) for f in got] == ([("lift", ("slide",), said)] * found)
 
 
+@pytest.mark.parametrize(
+    "stray, found", [(0.5 * ABSOLUTE_TOLERANCES["sideways"], False), (0.03, True)]
+)
+def test_a_body_that_strays_from_the_line_it_slides_along_is_found(stray, found):
+    results, outcomes, fits = right_sweep()
+    off = outcomes[at(outcomes, "slide", "mujoco", "Euler")].assign(
+        quantity="sideways", measured=stray, expected=0.0, error=stray, unit="m"
+    )
+    got = findings(results, pd.concat([outcomes, off], ignore_index=True), SCENES, fits)
+    said = "**mujoco** Euler: strays 0.03 m sideways of the line it should slide along"
+    assert [(f.kind, f.cases, f.text) for f in got] == ([("sideways", ("slide",), said)] * found)
+
+
 def test_integrators_of_one_engine_share_a_finding():
     results, outcomes, fits = right_sweep()
     for integrator in ("Euler", "RK4"):

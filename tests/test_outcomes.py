@@ -301,7 +301,39 @@ def test_stopping_distance_and_time_of_uniform_deceleration(hop):
     assert measured(table, "stopping_distance") == pytest.approx(distance, rel=EXACT_RTOL)
     assert measured(table, "stopping_time") == pytest.approx(stop, rel=EXACT_RTOL)
     assert measured(table, "lift") == pytest.approx(hop, abs=EXACT_ATOL)
+    assert measured(table, "sideways") == 0.0  # the hop is off the plane, not sideways
     assert measured(table, "creep") == 0.0  # launched, then still: measured from its stop
+
+
+@pytest.mark.parametrize("heading", [0.0, 0.7])
+def test_sideways_is_the_furthest_stray_from_the_line_of_the_starting_velocity(heading):
+    """Sliding along its starting velocity (heading, rad, from x) while drifting across it by
+    up to 3 mm, and hopping 5 cm off the floor: sideways counts the drift only."""
+    direction = np.array([math.cos(heading), math.sin(heading), 0.0])
+    across = np.array([-direction[1], direction[0], 0.0])
+    scene = floor_scene(
+        Expected(stopping_distance=0.9),
+        bodies=(cube(velocity=tuple(3.0 * direction)),),
+        duration=1.0,
+    )
+    t = np.arange(0.0, 1.0, SLIDE_SAMPLE)
+    drift = 0.003 * np.sin(np.pi * t)  # largest at t = 0.5, which no sample hits
+    x = (
+        scene.bodies[0].com
+        + np.outer(3.0 * t, direction)
+        + np.outer(drift, across)
+        + np.outer(0.05 * (t > 0.2), [0.0, 0.0, 1.0])
+    )
+    table = outcomes(trajectory(scene, t, x, np.zeros_like(x)), scene)
+    assert measured(table, "sideways") == pytest.approx(drift.max(), rel=EXACT_RTOL)
+
+
+def test_a_body_starting_still_on_a_level_plane_strays_by_any_move_along_it():
+    scene = floor_scene(Expected(stopping_distance=0.9), duration=1.0)  # it never starts
+    t = np.arange(0.0, 1.0, SLIDE_SAMPLE)
+    x = scene.bodies[0].com + np.outer(t, [0.003, 0.004, 0.1])  # 5 mm along the floor at t = 1
+    table = outcomes(trajectory(scene, t, x, np.zeros_like(x)), scene)
+    assert measured(table, "sideways") == pytest.approx(0.005 * t[-1], rel=EXACT_RTOL)
 
 
 def incline_scene(degrees: float, acceleration: float) -> tuple[Scene, np.ndarray]:
@@ -335,6 +367,35 @@ def test_slope_acceleration_slides_or_sticks(degrees, mu):
     assert rows.loc["slope_acceleration", "measured"] == pytest.approx(a, rel=EXACT_RTOL, abs=1e-12)
     assert rows.loc["slides", "measured"] == rows.loc["slides", "expected"] == float(slides)
     assert rows.loc["lift", "measured"] == pytest.approx(0.0, abs=EXACT_ATOL)
+    assert rows.loc["sideways", "measured"] == pytest.approx(0.0, abs=EXACT_ATOL)
+
+
+def test_sideways_on_a_slope_is_measured_across_the_downhill_line():
+    """A cube sliding down the slope while drifting across it (y, within the plane) by 2 mm and
+    rising off it (along the normal) by 4 mm: sideways is the 2 mm only."""
+    scene, downhill = incline_scene(35.0, 1.64)
+    normal = np.asarray(scene.planes[0].normal)
+    t = np.arange(0.0, 2.0, 0.01)
+    x = (
+        scene.bodies[0].com
+        + np.outer(0.82 * t**2, downhill)
+        + np.outer(0.001 * t, [0.0, 1.0, 0.0])
+        + np.outer(0.002 * t, normal)
+    )
+    table = outcomes(trajectory(scene, t, x, np.zeros_like(x)), scene)
+    assert measured(table, "sideways") == pytest.approx(0.001 * t[-1], rel=EXACT_RTOL)
+
+
+def test_sideways_is_not_measured_where_the_closed_forms_path_is_curved():
+    """Started across the slope, a sliding body's path bends downhill: no straight line."""
+    scene, _ = incline_scene(35.0, 1.64)
+    across = dataclasses.replace(scene.bodies[0], velocity=(0.0, 1.0, 0.0))
+    scene = dataclasses.replace(scene, bodies=(across,))
+    t = np.arange(0.0, 2.0, 0.01)
+    x = np.tile(scene.bodies[0].com, (len(t), 1))
+    assert np.isnan(
+        measured(outcomes(trajectory(scene, t, x, np.zeros_like(x)), scene), "sideways")
+    )
 
 
 def test_lift_is_one_row_where_both_sliding_closed_forms_are_stated():
@@ -346,6 +407,7 @@ def test_lift_is_one_row_where_both_sliding_closed_forms_are_stated():
     x = np.tile(both.bodies[0].com, (len(t), 1))
     table = outcomes(trajectory(both, t, x, np.zeros_like(x)), both)
     assert (table["quantity"] == "lift").sum() == 1
+    assert (table["quantity"] == "sideways").sum() == 1
 
 
 def test_creep_jitter_and_steady_penetration_of_a_resting_body():
