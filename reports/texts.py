@@ -231,7 +231,7 @@ PHYSICS_GATES = (
     "expectations any correct engine meets: angular momentum conserved in free flight, no "
     "energy gain beyond 1 %, the fitted order within 0.15 of the declared one on smooth free "
     "flight, rebound within 2 % of e, slide distance and incline acceleration within 1 % with "
-    "the sliding cube on its plane, "
+    "the sliding cube on its plane and its straight line, "
     "resting contact without creep or jitter, the stack standing. How to read: a row per "
     "gate and measure (at its dt; the order over the gate's dt list), its limit, and per "
     "engine/integrator pass or fail with the measured value (why, where a run failed or "
