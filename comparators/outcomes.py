@@ -252,13 +252,14 @@ def sideways(run: RunData, body_index: int) -> float:
     if line is None:
         speed = np.linalg.norm(start)
         line = start / speed if speed > 0 else np.zeros(3)
-    elif np.linalg.norm(start - np.dot(start, line) * line) > DIRECTION_RTOL * np.linalg.norm(
-        start
-    ):
+
+    def across(vector):  # its part across `line`, within the plane
+        return vector - np.multiply.outer(vector @ line, line)
+
+    if np.linalg.norm(across(start)) > DIRECTION_RTOL * np.linalg.norm(start):
         return np.nan
     x = run.arrays(body_index)["x"]
-    shift = _in_plane(x - x[0], plane)
-    off = np.linalg.norm(shift - np.outer(shift @ line, line), axis=1)
+    off = np.linalg.norm(across(_in_plane(x - x[0], plane)), axis=1)
     known = off[np.isfinite(off)]
     return float(known.max()) if len(known) else np.nan
 

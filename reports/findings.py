@@ -47,6 +47,11 @@ QUANTITY_NAMES = {
     "sideways": "sideways",
     "slides": "slides",
 }
+# How a sliding body that leaves the path both closed forms assume is said (the value in m).
+OFF_PATH = {
+    "lift": "lifts {} m off the plane it should slide on",
+    "sideways": "strays {} m sideways of the line it should slide along",
+}
 # A body without contact conserves its energy exactly; a drift above a tenth at the default dt
 # changes the motion's character (a tumbler's spin moves between its axes), not only its phase.
 ENERGY_DRIFT_NOTE = 0.1
@@ -152,14 +157,10 @@ def outcome_findings(
                 return text + (
                     ", at e² (restitution applied twice)" if all(i.squared for i in mine) else ""
                 )
-        elif quantity == "lift":
+        elif quantity in OFF_PATH:
 
-            def describe(mine):
-                return f"lifts {_values(mine, '.2g')} m off the plane it should slide on"
-        elif quantity == "sideways":
-
-            def describe(mine):
-                return f"strays {_values(mine, '.2g')} m sideways of the line it should slide along"
+            def describe(mine, phrase=OFF_PATH[quantity]):
+                return phrase.format(_values(mine, ".2g"))
         elif quantity == "slides":
 
             def describe(mine):
