@@ -1,5 +1,6 @@
 """The bodies as contact sees them at a step's start: rotation matrices, world inverse inertias
-and angular velocities, particle positions, and how far each body can move in the step."""
+and angular velocities, particle positions, and how far each body can move in the step; and
+the angular momenta a solve's new angular velocities give."""
 
 import math
 
@@ -26,6 +27,21 @@ def frames_into(model, q, L, rot, inv, omega):
             rot[b, k] = r[k]
             inv[b, k] = i_world[k]
         omega[b, 0], omega[b, 1], omega[b, 2] = w
+
+
+@inlined_kernel
+def angular_momenta(model, L, rot, inv, omega):
+    """L += R I0 R^T (omega - inv L) for each body, after a solve that changed omega alone:
+    inv L is the omega it started from (as `frames_into` made it, bit for bit), so a body it
+    did not touch keeps its L exactly. One product a body, not three more a contact update."""
+    for b in range(L.shape[0]):
+        start = mat_vec(flat(inv, b), row(L, b))
+        dw = (omega[b, 0] - start[0], omega[b, 1] - start[1], omega[b, 2] - start[2])
+        if dw[0] != 0.0 or dw[1] != 0.0 or dw[2] != 0.0:
+            r = flat(rot, b)
+            dl = mat_vec(r, mat_vec(mat(model.inertia0, b), mat_t_vec(r, dw)))
+            for i in range(3):
+                L[b, i] += dl[i]
 
 
 @kernel

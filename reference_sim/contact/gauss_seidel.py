@@ -60,8 +60,8 @@ def sticking(model, buf, k, v, vn, l0, l1, l2):
 
 
 @inlined_kernel
-def update(model, buf, k, v, L, change):
-    """One Gauss-Seidel update of contact k's impulses (`iterate`), applied to v and L;
+def update(model, buf, k, v, change):
+    """One Gauss-Seidel update of contact k's impulses (`iterate`), applied to v and omega;
     returns `change`, raised to the largest speed the update changed, and whether the contact
     sticks (solved as one 3 x 3 block)."""
     cands, jac, kn, kt, kt_inv = buf.cands, buf.jac, buf.kn, buf.kt, buf.kt_inv
@@ -78,7 +78,7 @@ def update(model, buf, k, v, L, change):
         )
         if sticks:
             lam[k, 0], lam[k, 1], lam[k, 2] = n0, n1, n2
-            push(model, jac[k], a, b, v, L, omega, d0, d1, d2)
+            push(model, jac[k], a, b, v, omega, d0, d1, d2)
             change = max(change, math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) * kn[k])
             buf.slack[k] = -math.inf
             return change, True
@@ -91,7 +91,7 @@ def update(model, buf, k, v, L, change):
     # a contact that does not push and had no friction keeps none: its disc is a point
     if model.friction == 0.0 or new == 0.0 and lam[k, 1] == 0.0 and lam[k, 2] == 0.0:
         if dl != 0.0:
-            push(model, jac[k], a, b, v, L, omega, dl, 0.0, 0.0)
+            push(model, jac[k], a, b, v, omega, dl, 0.0, 0.0)
         return change, False
     # friction: the impulse that stops the sliding if it fits in the Coulomb disc; else
     # mu P_n against the sliding velocity the contact would have without its own friction
@@ -111,7 +111,7 @@ def update(model, buf, k, v, L, change):
     d1, d2 = f1 - lam[k, 1], f2 - lam[k, 2]
     lam[k, 1], lam[k, 2] = f1, f2
     if dl != 0.0 or d1 != 0.0 or d2 != 0.0:
-        push(model, jac[k], a, b, v, L, omega, dl, d1, d2)
+        push(model, jac[k], a, b, v, omega, dl, d1, d2)
         # kn, the normal's inverse mass, scales impulses to speeds like the tangents' would
         change = max(change, math.sqrt(d1 * d1 + d2 * d2) * kn[k])
     return change, False
@@ -300,10 +300,10 @@ def cycles(cycle, n, moved):
 
 
 @kernel
-def extrapolate(model, buf, order, n, v, L, factor):
+def extrapolate(model, buf, order, n, v, factor):
     """Add `factor` times the last sweep's impulse change (since `buf.lam_sweep`) to each of the
     first n contacts of `order`, projected onto its bounds (normal >= 0, friction in the
-    Coulomb disc), and apply the changes to v and L. The sweeps go on from there and still
+    Coulomb disc), and apply the changes to v and omega. The sweeps go on from there and still
     decide convergence."""
     for m in range(n):
         k = order[m]
@@ -311,7 +311,7 @@ def extrapolate(model, buf, order, n, v, L, factor):
         p0 = lam[0] + factor * (lam[0] - last[0])
         p1 = lam[1] + factor * (lam[1] - last[1])
         p2 = lam[2] + factor * (lam[2] - last[2])
-        set_impulses(model, buf, k, p0, p1, p2, v, L)
+        set_impulses(model, buf, k, p0, p1, p2, v)
 
 
 @inlined_kernel
@@ -337,7 +337,7 @@ def _sweep_start(buf, n_busy, armed):
 
 
 @inlined_kernel
-def _sweep(model, buf, v, L, n_busy, n_idle, tolerance, sticking_seen):
+def _sweep(model, buf, v, n_busy, n_idle, tolerance, sticking_seen):
     """One sweep: the busy contacts, then the idle ones if the busy ones pass the stopping test
     (one loop: `update` is inlined once). Returns the largest speed an update changed, the
     largest body velocity change (`_moved`), whether the sweep converged, whether it visited
@@ -355,7 +355,7 @@ def _sweep(model, buf, v, L, n_busy, n_idle, tolerance, sticking_seen):
             a, b = buf.cands[k, 0], buf.cands[k, 2]
             n_touched = _touch(buf, v, a, sweep, n_touched)
             n_touched = _touch(buf, v, b, sweep, n_touched)
-            own, sticks = update(model, buf, k, v, L, 0.0)
+            own, sticks = update(model, buf, k, v, 0.0)
             change = max(change, own)
             sticking_seen = sticking_seen or sticks
         moved = _moved(model, v, buf.omega, buf.bodies, buf.touched, n_touched)
@@ -367,7 +367,7 @@ def _sweep(model, buf, v, L, n_busy, n_idle, tolerance, sticking_seen):
 
 
 @inlined_kernel
-def _pile_sweep(model, buf, v, L, n_busy, n_idle, tolerance, sticking_seen, quiet, armed):
+def _pile_sweep(model, buf, v, n_busy, n_idle, tolerance, sticking_seen, quiet, armed):
     """A pile's sweep (`_sweep`), of the contacts that are due only (`buf.due`): a contact
     whose last update changed a speed by less than `quiet` and whose bodies no update has
     changed by that much since is quiet, and skipped, as an update would change it little more
@@ -392,7 +392,7 @@ def _pile_sweep(model, buf, v, L, n_busy, n_idle, tolerance, sticking_seen, quie
             a, b = buf.cands[k, 0], buf.cands[k, 2]
             n_touched = _touch(buf, v, a, sweep, n_touched)
             n_touched = _touch(buf, v, b, sweep, n_touched)
-            own, sticks = update(model, buf, k, v, L, 0.0)
+            own, sticks = update(model, buf, k, v, 0.0)
             change = max(change, own)
             sticking_seen = sticking_seen or sticks
             if own >= quiet:  # its bodies moved: every contact on them is due
@@ -411,7 +411,7 @@ def _pile_sweep(model, buf, v, L, n_busy, n_idle, tolerance, sticking_seen, quie
 
 
 @inlined_kernel
-def _follow_rate(model, buf, order, n, v, L, moved, last, rate, steady, armed, trusted, tried):
+def _follow_rate(model, buf, order, n, v, moved, last, rate, steady, armed, trusted, tried):
     """The sweeps' rate of convergence after a sweep whose velocity change is `moved`; once
     steady (RATE_SWEEPS) or agreeing with the `trusted` one, and `armed`, the last sweep's
     impulse change is extrapolated (`extrapolate`) and `tried` set to its rate. Returns the new
@@ -422,7 +422,7 @@ def _follow_rate(model, buf, order, n, v, L, moved, last, rate, steady, armed, t
     rate, last = ratio, moved
     known = abs(ratio - trusted) < RATE_AGREEMENT * ratio
     if armed and (steady >= RATE_SWEEPS - 1 or known) and rate < RATE_MAX:
-        extrapolate(model, buf, order, n, v, L, rate / (1.0 - rate))
+        extrapolate(model, buf, order, n, v, rate / (1.0 - rate))
         buf.solver[STAT_EXTRAPOLATIONS] += 1
         tried = rate
         last, rate, steady = math.inf, 0.0, 0
@@ -438,7 +438,6 @@ def iterate(
     dt,
     buf,
     v,
-    L,
     tolerance,
     idle_margin,
     first=SUBSPACE_FIRST,
@@ -464,7 +463,7 @@ def iterate(
         _sweep_start(buf, n_busy, armed)
         stuck = model.friction == 0.0  # a subspace step needs a sticking contact
         change, moved, converged, rejoin, stuck = _sweep(
-            model, buf, v, L, n_busy, n_idle, tolerance, stuck
+            model, buf, v, n_busy, n_idle, tolerance, stuck
         )
         if converged:
             awake = wake(model, x, nc, dt, buf, v, n_busy)
@@ -485,16 +484,16 @@ def iterate(
         if it >= CYCLE_START and cycles(buf.cycle, it - CYCLE_START, moved):
             return it + 1, False
         last, rate, steady, armed, tried = _follow_rate(
-            model, buf, buf.busy, n_busy, v, L, moved, last, rate, steady, armed, trusted, tried
+            model, buf, buf.busy, n_busy, v, moved, last, rate, steady, armed, trusted, tried
         )
         n_busy, n_idle = _regroup(buf, n_busy, n_idle, idle_margin * change, rejoin)
         if stuck and first <= it + 1 < first + SUBSPACE_STEPS:
-            buf.solver[STAT_SUBSPACE_STEPS] += subspace_step(model, nc, buf, v, L)
+            buf.solver[STAT_SUBSPACE_STEPS] += subspace_step(model, nc, buf, v)
     return limit, False
 
 
 @kernel
-def iterate_pile(model, x, nc, dt, buf, v, L, tolerance, idle_margin, first, slot, limit):
+def iterate_pile(model, x, nc, dt, buf, v, tolerance, idle_margin, first, slot, limit):
     """`iterate` for a pile (QUIET_MIN_BODIES bodies or more), whose sweeps skip quiet contacts
     too (`_pile_sweep`). Called, not inlined: the single bodies' step has none of its code. Its
     stall and cycle rules repeat `iterate`'s: shared as a helper, they made the single bodies'
@@ -510,7 +509,7 @@ def iterate_pile(model, x, nc, dt, buf, v, L, tolerance, idle_margin, first, slo
         stuck = model.friction == 0.0
         quiet = max(tolerance, QUIET_FRACTION * change)  # of the sweep before
         change, moved, converged, rejoin, stuck, skipped, visits = _pile_sweep(
-            model, buf, v, L, n_busy, n_idle, tolerance, stuck, quiet, armed
+            model, buf, v, n_busy, n_idle, tolerance, stuck, quiet, armed
         )
         if converged and skipped:  # confirmed by a sweep of every contact
             _all_due(buf, n_swept)
@@ -535,11 +534,11 @@ def iterate_pile(model, x, nc, dt, buf, v, L, tolerance, idle_margin, first, slo
         if it >= CYCLE_START and cycles(buf.cycle, it - CYCLE_START, moved):
             return it + 1, False
         last, rate, steady, armed, tried = _follow_rate(
-            model, buf, buf.visited, visits, v, L, moved, last, rate, steady, armed, trusted, tried
+            model, buf, buf.visited, visits, v, moved, last, rate, steady, armed, trusted, tried
         )
         n_busy, n_idle = _regroup_visited(buf, visits, n_busy, n_idle, idle_margin * change)
         stepped = stuck and first <= it + 1 < first + SUBSPACE_STEPS
-        stepped = stepped and subspace_step(model, nc, buf, v, L)
+        stepped = stepped and subspace_step(model, nc, buf, v)
         buf.solver[STAT_SUBSPACE_STEPS] += stepped
         if stepped or last == math.inf:  # impulses changed outside the updates
             _all_due(buf, n_swept)

@@ -1,4 +1,4 @@
-"""A contact's speed along its Jacobian, and impulses applied to its two bodies (dL = r x P):
+"""A contact's speed along its Jacobian, and impulses applied to its two bodies' velocities:
 the operations every solve is built from."""
 
 import math
@@ -22,20 +22,19 @@ def row_speed(rows, a, b, v, omega):
 
 
 @inlined_kernel
-def push(model, jac, a, b, v, L, omega, p0, p1, p2):
+def push(model, jac, a, b, v, omega, p0, p1, p2):
     """Apply the impulse changes p0 (normal), p1, p2 (tangents) along a contact's Jacobian
-    `jac` (3, 5, 3) to both bodies (dL = r x P): summed per body first, then each of v, L and
-    omega changed once."""
+    `jac` (3, 5, 3) to both bodies' v and omega (d omega = I^-1 (r x P)): summed per body
+    first, then each changed once. A solve carries L over once at its end
+    (`frames.angular_momenta`): nothing reads L during it."""
     along_a = 1.0 / model.body_mass[a]
     along_b = 1.0 / model.body_mass[b] if b >= 0 else 0.0
     for i in range(3):
         force = p0 * jac[0, 0, i] + p1 * jac[1, 0, i] + p2 * jac[2, 0, i]
         v[a, i] += along_a * force
-        L[a, i] += p0 * jac[0, 1, i] + p1 * jac[1, 1, i] + p2 * jac[2, 1, i]
         omega[a, i] += p0 * jac[0, 2, i] + p1 * jac[1, 2, i] + p2 * jac[2, 2, i]
         if b >= 0:
             v[b, i] -= along_b * force
-            L[b, i] -= p0 * jac[0, 3, i] + p1 * jac[1, 3, i] + p2 * jac[2, 3, i]
             omega[b, i] -= p0 * jac[0, 4, i] + p1 * jac[1, 4, i] + p2 * jac[2, 4, i]
 
 
@@ -50,13 +49,13 @@ def into_disc(mu, p0, p1, p2):
 
 
 @kernel
-def set_impulses(model, buf, k, p0, p1, p2, v, L):
+def set_impulses(model, buf, k, p0, p1, p2, v):
     """Set contact k's impulses (normal p0, friction p1, p2) projected onto its bounds (normal
-    >= 0, friction in the Coulomb disc), and apply their changes to v and L."""
+    >= 0, friction in the Coulomb disc), and apply their changes to v and omega."""
     p0 = max(p0, 0.0)
     p1, p2 = into_disc(model.friction, p0, p1, p2)
     lam = buf.lam[k]
     d0, d1, d2 = p0 - lam[0], p1 - lam[1], p2 - lam[2]
     if d0 != 0.0 or d1 != 0.0 or d2 != 0.0:
-        push(model, buf.jac[k], buf.cands[k, 0], buf.cands[k, 2], v, L, buf.omega, d0, d1, d2)
+        push(model, buf.jac[k], buf.cands[k, 0], buf.cands[k, 2], v, buf.omega, d0, d1, d2)
         lam[0], lam[1], lam[2] = p0, p1, p2

@@ -13,7 +13,7 @@ from reference_sim.contact.buffers import (
     STAT_SWEEPS,
     STAT_UNCONVERGED,
 )
-from reference_sim.contact.frames import frames_into
+from reference_sim.contact.frames import angular_momenta, frames_into
 from reference_sim.contact.gauss_seidel import iterate, iterate_pile, sticking
 from reference_sim.contact.impulses import row_speed, set_impulses
 from reference_sim.contact.rows import assemble
@@ -61,9 +61,10 @@ def solve(model, x, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm, slot):
     else the second; none in a scene of fewer than SUBSPACE_MIN_BODIES bodies. `slot`:
     PRE_DRIFT or POST_DRIFT (its trusted extrapolation rate, `iterate`). A warm-started solve
     of at most RESTART_MAX_BODIES bodies not converged in RESTART_SWEEPS sweeps starts again
-    from no impulse, once, within MAX_ITERATIONS in all. Counts the solve in `buf.solver`."""
+    from no impulse, once, within MAX_ITERATIONS in all. The sweeps change v and `buf.omega`;
+    L follows once at the end (`angular_momenta`). Counts the solve in `buf.solver`."""
     tolerance = solver_tolerance(dt)
-    warm = warm_start(model, x, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance)
+    warm = warm_start(model, x, nc, buf, v, warm_keys, warm_lam, n_warm, tolerance)
     first = SUBSPACE_FIRST_WARM if warm > 0 else SUBSPACE_FIRST
     if v.shape[0] < SUBSPACE_MIN_BODIES:
         first = MAX_ITERATIONS + 1  # after no sweep
@@ -73,11 +74,11 @@ def solve(model, x, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm, slot):
     while True:  # one call site: `iterate` is inlined
         if v.shape[0] >= QUIET_MIN_BODIES:
             used, converged = iterate_pile(
-                model, x, nc, dt, buf, v, L, tolerance, IDLE_MARGIN, first, slot, budget
+                model, x, nc, dt, buf, v, tolerance, IDLE_MARGIN, first, slot, budget
             )
         else:
             used, converged = iterate(
-                model, x, nc, dt, buf, v, L, tolerance, IDLE_MARGIN, first, slot, budget
+                model, x, nc, dt, buf, v, tolerance, IDLE_MARGIN, first, slot, budget
             )
         sweeps += used
         if converged or not restart:
@@ -86,7 +87,8 @@ def solve(model, x, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm, slot):
         restart, budget = False, MAX_ITERATIONS - sweeps
         for k in range(nc):
             if buf.active[k]:
-                set_impulses(model, buf, k, 0.0, 0.0, 0.0, v, L)
+                set_impulses(model, buf, k, 0.0, 0.0, 0.0, v)
+    angular_momenta(model, L, buf.rot, buf.inv, buf.omega)
     buf.solver[STAT_SOLVES] += 1
     buf.solver[STAT_SWEEPS] += sweeps
     buf.solver[STAT_UNCONVERGED] += not converged

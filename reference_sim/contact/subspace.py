@@ -146,9 +146,9 @@ def _mass_times_rhs(model, buf):
 
 
 @inlined_kernel
-def _apply_changes(model, nc, buf, n_rows, v, L, changes):
+def _apply_changes(model, nc, buf, n_rows, v, changes):
     """Add the rows' impulse changes `changes` to their contacts' impulses, projected onto the
-    bounds, and apply them to v and L; False, changing nothing, if a change is not finite."""
+    bounds, and apply them to v and omega; False, changing nothing, if a change is not finite."""
     for r in range(n_rows):
         if not math.isfinite(changes[r]):
             return False
@@ -163,12 +163,12 @@ def _apply_changes(model, nc, buf, n_rows, v, L, changes):
             p1, p2 = p1 + changes[r + 1], p2 + changes[r + 2]
             r += 2
         r += 1
-        set_impulses(model, buf, k, p0, p1, p2, v, L)
+        set_impulses(model, buf, k, p0, p1, p2, v)
     return True
 
 
 @kernel
-def subspace_step(model, nc, buf, v, L):
+def subspace_step(model, nc, buf, v):
     """Solve the subspace's equalities together (`subspace_rows`: each row's speed at its
     target), then project the impulses onto their bounds and apply the changes.
 
@@ -196,4 +196,4 @@ def subspace_step(model, nc, buf, v, L):
     cholesky_solve(a, n, buf.rhs)
     for r in range(n_rows):  # the impulse changes
         errors[r] = _subspace_speed(buf, r, buf.rhs)
-    return _apply_changes(model, nc, buf, n_rows, v, L, errors)
+    return _apply_changes(model, nc, buf, n_rows, v, errors)

@@ -36,7 +36,7 @@ def trend(model, warm_lam, at, kn, tolerance):
 
 
 @inlined_kernel
-def warm_start(model, x, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance):
+def warm_start(model, x, nc, buf, v, warm_keys, warm_lam, n_warm, tolerance):
     """Each contact that matches one of last step's starts from its impulses, continued along
     their trend (`trend`), applied; the impulses of the steps before go into `buf.hist` for
     `remember` (NaN: none). Both key lists are in increasing order: one merge pass matches
@@ -60,7 +60,7 @@ def warm_start(model, x, nc, buf, v, L, warm_keys, warm_lam, n_warm, tolerance):
             buf.lam[k, 0], buf.lam[k, 1], buf.lam[k, 2] = p0, p1, p2
             if p0 != 0.0 or p1 != 0.0 or p2 != 0.0:
                 a, b = buf.cands[k, 0], buf.cands[k, 2]
-                push(model, buf.jac[k], a, b, v, L, buf.omega, p0, p1, p2)
+                push(model, buf.jac[k], a, b, v, buf.omega, p0, p1, p2)
     return warm
 
 
