@@ -27,6 +27,7 @@ from reference_sim.contact.buffers import (
     SOLVER_STATISTICS,
     contact_buffers,
     grown,
+    largest_body,
 )
 from reference_sim.contact.candidates import find_candidates_into
 from reference_sim.contact.frames import frames_into, reach_into, world_omega
@@ -282,7 +283,7 @@ def run_rigid(model, integrator, x, q, v, L, dt, n_steps, stride):
         _free_steps(model, integrator, x, q, v, L, dt, n_steps, stride, out, steps)
         return steps, out, np.zeros(SOLVER_STATISTICS, dtype=np.int64)
     nb = x.shape[0]
-    buf = contact_buffers(nb, 8 * nb + 16, 4 * nb + 16)
+    buf = contact_buffers(nb, 8 * nb + 16, 4 * nb + 16, largest_body(model))
     _record_state(model, x, q, v, L, out[0])
     steps[0] = 0
     progress = np.ones(2, dtype=np.int64)  # the next step and the next sample's slot

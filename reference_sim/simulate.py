@@ -5,7 +5,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from reference_sim.contact.buffers import contact_buffers, grown
+from reference_sim.contact.buffers import contact_buffers, grown, largest_body
 from reference_sim.contact.candidates import find_candidates_into
 from reference_sim.contact.frames import frames_into
 from reference_sim.contact.pair_list import pair_list
@@ -123,7 +123,7 @@ def compile_stage(stage: str) -> None:
         x, q, v, L = (a.copy() for a in state)
         # the buffers and the candidates by the Python functions: compiling them is "free"'s
         # part (the candidates compile inlined in the step, calling the kernels compiled here)
-        buf = contact_buffers.py_func(1, 16, 4)
+        buf = contact_buffers.py_func(1, 16, 4, largest_body.py_func(model))
         frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
         nc = find_candidates_into.py_func(model, x, v, dt, (0.0, 0.0, 0.0), buf)
         before_drift(model, x, v, L, nc, dt, (0.0, 0.0, -0.05), 0.2, buf)
@@ -132,7 +132,7 @@ def compile_stage(stage: str) -> None:
         x, q, v, L = (a.copy() for a in state)
         out, steps = np.empty((2, 1, 13)), np.empty(2, dtype=np.int64)
         _free_steps(model, INTEGRATOR_CODES["splitting"], x, q, v, L, dt, 1, 1, out, steps)
-        buf = grown(contact_buffers(1, 8, 4), 16, 4)
+        buf = grown(contact_buffers(1, 8, 4, largest_body(model)), 16, 4)
         _body_pairs(model, INTEGRATOR_CODES["splitting"], x, q, v, L, dt, buf, pair_list(1))
     elif stage == "seed":
         simulate(model, seed_initial_state(model, corners[:, :3], velocity, omega), "seed", dt, 2)

@@ -33,6 +33,7 @@ from reference_sim.contact.buffers import (
     STAT_SOLVES,
     STAT_SWEEPS,
     STAT_UNCONVERGED,
+    largest_body,
 )
 from reference_sim.contact.impulses import row_speed
 from reference_sim.contact.rows import assemble
@@ -114,7 +115,7 @@ def test_gauss_seidel_ends_on_targets_no_rigid_motion_meets():
     scene = CATALOG["resting_cube"]
     model = model_from_scene(scene)
     x, q, v, L = initial_state(model, scene)
-    buf = buffers.contact_buffers(1, 16, 4)
+    buf = buffers.contact_buffers(1, 16, 4, largest_body(model))
     frames.frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
     nc = candidates.find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
     assert nc == 4  # the bottom face's corners
@@ -147,7 +148,7 @@ def _settled(name, friction=None):
     if friction is not None:
         model = model._replace(friction=friction)
     x, q, v, L = initial_state(model, scene)
-    buf = buffers.contact_buffers(len(scene.bodies), 64, 16)
+    buf = buffers.contact_buffers(len(scene.bodies), 64, 16, largest_body(model))
     frames.frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
     nc = candidates.find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
     buf.acting[:nc] = True
@@ -316,7 +317,7 @@ def test_without_the_restart_the_flat_landing_cycles_and_turns(monkeypatch):
     scene, dt = CATALOG["dropped_cube"], 0.02
     model = model_from_scene(scene)
     x, q, v, L = initial_state(model, scene)
-    buf = buffers.contact_buffers(1, 16, 4)
+    buf = buffers.contact_buffers(1, 16, 4, largest_body(model))
     threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * dt
     w = []
     for _ in range(scene.steps(dt, scene.duration)):
@@ -394,7 +395,7 @@ def _first_rain_step_counting(counter, converged=False, scene=CATALOG["cube_rain
     model = model_from_scene(scene)
     x, q, v, L = initial_state(model, scene)
     nb = len(scene.bodies)
-    buf = buffers.contact_buffers(nb, 64 * nb, nb**2)
+    buf = buffers.contact_buffers(nb, 64 * nb, nb**2, largest_body(model))
     for _ in range(scene.steps(scene.dt, scene.duration)):
         before = [a.copy() for a in (x, q, v, L)], buffers.ContactBuffers(*(a.copy() for a in buf))
         assert _rain_step(model, (x, q, v, L), buf) == 0
@@ -537,7 +538,7 @@ def test_a_piles_sweep_finds_its_due_contacts_in_order_and_each_bodys_contacts(c
     next_due, link, due_on = (
         kernel(f) for f in (gauss_seidel._next_due, gauss_seidel._link, gauss_seidel._due_on)
     )
-    buf = buffers.contact_buffers(4, 200, 8)
+    buf = buffers.contact_buffers(4, 200, 8, 1)
     swept = [0, 5, 63, 64, 130, 191]
     bodies = {0: (0, -1), 5: (1, 0), 63: (2, 1), 64: (3, -1), 130: (1, 2), 191: (0, 3)}
     for k, (a, b) in bodies.items():
@@ -571,7 +572,7 @@ def test_a_trusted_rate_extrapolates_sooner_to_the_same_motion():
     scene = CATALOG["dropped_cube"]
     model = model_from_scene(scene)
     state = initial_state(model, scene)
-    buf = buffers.contact_buffers(1, 64, 4)
+    buf = buffers.contact_buffers(1, 64, 4, largest_body(model))
     threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * scene.dt
     for _ in range(scene.steps(scene.dt, scene.duration)):
         before = [a.copy() for a in state], buffers.ContactBuffers(*(a.copy() for a in buf))
@@ -624,7 +625,7 @@ def test_a_contact_on_standby_wakes_when_the_solve_swings_its_body_into_it():
     )
     model = model_from_scene(scene)
     x, q, v, L = initial_state(model, scene)
-    buf = buffers.contact_buffers(1, 16, 4)
+    buf = buffers.contact_buffers(1, 16, 4, largest_body(model))
     frames.frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
     frames.reach_into(model, v, buf.omega, dt, (0.0, 0.0, 0.0), buf.reach)
     assert buf.reach[0] < lift  # the far end is beyond the step's reach at its start

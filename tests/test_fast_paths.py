@@ -16,13 +16,15 @@
   changed no contact's speed by more than a few tolerances.
 """
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scenes import initial_state
 from scipy.spatial.transform import Rotation
 
 from cases import CATALOG, Body, Contact, Scene
-from cases.builders import box_corners, box_walls
+from cases.builders import box_corners, box_lattice, box_walls
 from comparators.reference import model_from_scene
 from reference_sim.contact.buffers import (
     COUNT_KEPT_ROWS,
@@ -32,6 +34,7 @@ from reference_sim.contact.buffers import (
     STAT_SWEEPS,
     ContactBuffers,
     contact_buffers,
+    largest_body,
 )
 from reference_sim.contact.candidates import all_pairs, find_candidates_into
 from reference_sim.contact.frames import frames_into, reach_into
@@ -160,7 +163,7 @@ def crowd(n_side: int = 4, seed: int = 7) -> Scene:
 
 
 def _reach(model, state, dt):
-    buf = contact_buffers(len(model.body_mass), 1, 1)
+    buf = contact_buffers(len(model.body_mass), 1, 1, largest_body(model))
     frames_into(model, state.q, state.L, buf.rot, buf.inv, buf.omega)
     reach_into(model, state.v, buf.omega, dt, (0.0, 0.0, 0.0), buf.reach)
     return buf.reach
@@ -175,6 +178,58 @@ def test_grid_finds_the_same_body_pairs():
         every = all_pairs(model, state.x, reach)
         assert len(every) > 0
         np.testing.assert_array_equal(grid, every)
+
+
+def _lattice_crowd() -> Scene:
+    """The crowd with every other box a 3 x 3 x 3 lattice of smaller particles: bodies of
+    different particle counts and radii side by side."""
+    scene = crowd()
+    bodies = list(scene.bodies)
+    for k in range(1, len(bodies), 2):
+        centre = np.mean([row[:3] for row in bodies[k].particles], axis=0)
+        particles = box_lattice((0.3, 0.3, 0.3), (3, 3, 3), center=tuple(centre))
+        bodies[k] = replace(bodies[k], particles=particles, particle_radius=0.02)
+    return replace(scene, bodies=tuple(bodies))
+
+
+def _every_particle_pair(model, x, rot, reach, pairs):
+    """The particle candidates of body `pairs` with every particle pair tested, in numpy, as
+    (rows, margins): rows (a, i, b, j) in key order, and each tested pair's squared distance
+    over its squared bound, minus one (how near to the bound it fell)."""
+    rows, margins = [], []
+    for a, b in pairs:
+        ia = np.arange(model.body_start[a], model.body_start[a + 1])
+        ib = np.arange(model.body_start[b], model.body_start[b + 1])
+        pa = x[a] + model.offsets[ia] @ rot[a].reshape(3, 3).T
+        pb = x[b] + model.offsets[ib] @ rot[b].reshape(3, 3).T
+        ri, rj = model.radius[ia][:, None], model.radius[ib][None, :]
+        within = reach[a] + reach[b] + np.minimum(ri, rj) + ri + rj
+        squared = ((pa[:, None, :] - pb[None, :, :]) ** 2).sum(axis=2)
+        margins.append((squared / within**2 - 1.0).ravel())
+        for i, j in zip(*np.nonzero(squared < within**2), strict=True):
+            rows.append((a, ia[i], b, ib[j]))
+    return np.array(rows, dtype=np.int64).reshape(-1, 4), np.concatenate(margins)
+
+
+@pytest.mark.parametrize("scene", [crowd(), _lattice_crowd()], ids=["boxes", "boxes_and_lattices"])
+def test_particle_candidates_are_every_particle_pairs(scene):
+    """The particle candidates, found only among particles that can reach the other body
+    (`candidates._can_reach`), are those of every particle pair tested, in order: from few
+    pairs to most (dt 0.005 to 0.15). Pairs within 1e-12 of the bound, where numpy's
+    rounding may differ from the compiled test's, would not compare: there are none."""
+    model, state = _state(scene)
+    nb = len(model.body_mass)
+    for dt in (0.005, 0.05, 0.15):
+        buf = contact_buffers(nb, 64 * nb * nb, nb * nb, largest_body(model))
+        frames_into(model, state.q, state.L, buf.rot, buf.inv, buf.omega)
+        nc = find_candidates_into(model, state.x, state.v, dt, (0.0, 0.0, 0.0), buf)
+        assert 0 < nc <= len(buf.cands)
+        found = buf.cands[:nc][buf.cands[:nc, 2] >= 0]
+        pairs = all_pairs(model, state.x, buf.reach)
+        every, margins = _every_particle_pair(model, state.x, buf.rot, buf.reach, pairs)
+        assert np.abs(margins).min() > 1e-12
+        assert len(every) > 0
+        np.testing.assert_array_equal(found, every)
 
 
 def test_a_spread_out_grid_is_coarsened_to_its_cell_budget():
@@ -226,7 +281,7 @@ def test_pair_list_gives_the_grids_pairs_at_every_step(integrator):
     threshold = BOUNCE_STEPS * 10.0 * scene.dt
     code = INTEGRATOR_CODES[integrator]
     x, q, v, L = (a.copy() for a in state)
-    buf = contact_buffers(nb, 64 * nb, nb * nb)
+    buf = contact_buffers(nb, 64 * nb, nb * nb, largest_body(model))
     found, kept, listed = pair_list(nb), 0, 0
     for _ in range(100):
         frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
@@ -270,7 +325,7 @@ def test_grid_and_pairwise_steps_are_bit_equal(integrator):
     results = []
     for use_grid in (True, False):
         x, q, v, L = (a.copy() for a in state)
-        buf = contact_buffers(nb, 64 * nb, nb * nb)
+        buf = contact_buffers(nb, 64 * nb, nb * nb, largest_body(model))
         touched = 0
         for _ in range(100):
             if use_grid:
@@ -348,7 +403,9 @@ def test_reused_contact_rows_are_fresh_ones_to_rounding(case, integrator):
     n_steps = min(500, round(scene.duration / scene.dt))
     for reuse in (True, False):
         x, q, v, L = (a.copy() for a in state)
-        buf = contact_buffers(nb, 64 * nb, nb * nb)  # room for every step: never grown
+        buf = contact_buffers(
+            nb, 64 * nb, nb * nb, largest_body(model)
+        )  # room for every step: never grown
         for _ in range(n_steps):
             if reuse:
                 reused += buf.counts[COUNT_KEPT_ROWS] > 0
@@ -382,7 +439,7 @@ def test_rows_past_the_last_assembly_are_assembled_afresh():
     scene = CATALOG["resting_cube"]
     model, state = _state(scene)
     x, q, v, L = (a.copy() for a in state)
-    buf = contact_buffers(1, 64, 16)
+    buf = contact_buffers(1, 64, 16, largest_body(model))
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
     nc = find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
     assert nc >= 2  # the corners on the floor
@@ -412,7 +469,7 @@ def test_sweeps_that_skip_idle_contacts_end_where_full_sweeps_end(steps):
     model, state = _state(scene)
     x, q, v, L = (a.copy() for a in state)
     nb = len(model.body_mass)
-    buf = contact_buffers(nb, 64 * nb, nb * nb)
+    buf = contact_buffers(nb, 64 * nb, nb * nb, largest_body(model))
     threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * scene.dt
     for _ in range(steps):
         assert (
@@ -474,7 +531,7 @@ def test_a_skipped_post_drift_solve_would_change_no_speed_by_the_tolerance(case,
     threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * scene.dt  # as `run_rigid`'s
     tolerance = solver_tolerance(scene.dt)
     x, q, v, L = (a.copy() for a in state)
-    buf = contact_buffers(nb, 64 * nb, nb * nb)
+    buf = contact_buffers(nb, 64 * nb, nb * nb, largest_body(model))
     n_steps = min(1000, round(scene.duration / scene.dt))
     skipped, largest = 0, 0.0
     for _ in range(n_steps):

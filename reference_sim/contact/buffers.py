@@ -37,7 +37,8 @@ POST_DRIFT = 1
 class ContactBuffers(NamedTuple):
     """Everything a contact step writes, allocated once per run and grown when a step needs
     more room, so that steps allocate nothing. B bodies, C candidates (capacity), P body pairs,
-    S = min(B, SUBSPACE_MAX_BODIES) bodies in a subspace step. Matrices are row major.
+    S = min(B, SUBSPACE_MAX_BODIES) bodies in a subspace step, Q particles in the largest body.
+    Matrices are row major.
 
     Attributes:
       rot, inv: (B, 9) each body's rotation matrix and world inverse inertia.
@@ -77,6 +78,8 @@ class ContactBuffers(NamedTuple):
         contacts the last sweep of a pile updated, in order.
       mark: (B,) the sweep (COUNT_SWEEP) that last touched each body; touched: (B,) the bodies
         the current sweep has touched, in order (their velocities at its start in `bodies`).
+      near, near_index: (Q, 3), (Q,) world positions and indices of the particles of a body pair's
+        second body that can reach the first (`candidates._pair_candidates_into`).
     """
 
     rot: np.ndarray
@@ -127,11 +130,23 @@ class ContactBuffers(NamedTuple):
     visited: np.ndarray
     mark: np.ndarray
     touched: np.ndarray
+    near: np.ndarray
+    near_index: np.ndarray
+
+
+@kernel
+def largest_body(model):
+    """The most particles of one body of `model`: the room `ContactBuffers.near` needs."""
+    n = 0
+    for b in range(model.body_mass.shape[0]):
+        n = max(n, model.body_start[b + 1] - model.body_start[b])
+    return n
 
 
 @compiled
-def contact_buffers(n_bodies, capacity, pair_capacity):
-    """Empty buffers for `capacity` candidates and `pair_capacity` body pairs."""
+def contact_buffers(n_bodies, capacity, pair_capacity, body_particles):
+    """Empty buffers for `capacity` candidates and `pair_capacity` body pairs, of bodies of at
+    most `body_particles` particles."""
     c, s = capacity, min(n_bodies, SUBSPACE_MAX_BODIES)
     counts = np.zeros(N_COUNTS, dtype=np.int64)
     counts[COUNT_PAIRS] = -1
@@ -184,6 +199,8 @@ def contact_buffers(n_bodies, capacity, pair_capacity):
         visited=np.zeros(c, dtype=np.int64),
         mark=np.zeros(n_bodies, dtype=np.int64),
         touched=np.zeros(n_bodies, dtype=np.int64),
+        near=np.zeros((body_particles, 3)),
+        near_index=np.zeros(body_particles, dtype=np.int64),
     )
 
 
@@ -213,6 +230,6 @@ def _carry_over(old, new):
 def grown(buf, capacity, pair_capacity):
     """Buffers with at least these capacities, carrying over the warm start of `buf`."""
     nb, c, p = buf.rot.shape[0], buf.cands.shape[0], buf.pairs.shape[0]
-    new = contact_buffers(nb, max(capacity, c), max(pair_capacity, p))
+    new = contact_buffers(nb, max(capacity, c), max(pair_capacity, p), buf.near.shape[0])
     _carry_over(buf, new)
     return new
