@@ -177,13 +177,15 @@ def _kick(model, integrator, v, dt):
 def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, buf):
     """Advance every body by dt in place; contact impulses before and after the drift.
 
-    `buf` (`ContactBuffers`) holds the contacts' work space, the body pairs if the caller found
-    them, and last step's impulses for the warm start. Returns 0, or (if `buf` is too small,
-    before changing anything) the candidates' count it needs, or minus the body pairs' count.
+    `buf` (`ContactBuffers`) holds the contacts' work space, the body pairs and the frames if
+    the caller found them (`_body_pairs`, COUNT_PAIRS), and last step's impulses for the warm
+    start. Returns 0, or (if `buf` is too small, before changing anything) the candidates'
+    count it needs, or minus the body pairs' count.
     """
     nc = 0
     if model.contact:
-        frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
+        if buf.counts[COUNT_PAIRS] < 0:  # else `_body_pairs` made them at this pose
+            frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
         kick = (0.0, 0.0, 0.0)
         if integrator == EULER and model.gravity_on:
             kick = (dt * model.gravity[0], dt * model.gravity[1], dt * model.gravity[2])
@@ -241,7 +243,7 @@ def _steps(
 def _body_pairs(model, integrator, x, q, v, L, dt, buf, found):
     """Body pairs of the coming step from the list `found` (`current_pairs`: the grid's pairs,
     searched again only when the bodies have moved out of its skins), copied into `buf` (grown
-    if needed) for `rigid_step`; returns the buffers and the list."""
+    if needed) for `rigid_step` with the frames at this pose; returns the buffers and the list."""
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
     g = model.gravity if integrator == EULER and model.gravity_on else np.zeros(3)
     reach = np.empty(x.shape[0])
@@ -249,6 +251,7 @@ def _body_pairs(model, integrator, x, q, v, L, dt, buf, found):
     found, n = current_pairs(model.bound_radius, x, reach, found, buf.pairs)
     if n > buf.pairs.shape[0]:
         buf = grown(buf, buf.cands.shape[0], 2 * n)
+        frames_into(model, q, L, buf.rot, buf.inv, buf.omega)  # for `rigid_step`, as above
         found, n = current_pairs(model.bound_radius, x, reach, found, buf.pairs)
     buf.counts[COUNT_PAIRS] = n
     return buf, found

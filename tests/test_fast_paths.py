@@ -52,7 +52,14 @@ from reference_sim.contact.settings import (
     solver_tolerance,
 )
 from reference_sim.contact.step import _pushes_nothing, solve
-from reference_sim.rigid import BOUNCE_STEPS, INTEGRATOR_CODES, POSE_ROUNDING, rigid_step, run_rigid
+from reference_sim.rigid import (
+    BOUNCE_STEPS,
+    INTEGRATOR_CODES,
+    POSE_ROUNDING,
+    _body_pairs,
+    rigid_step,
+    run_rigid,
+)
 
 # Free flight: one step of either path from the same state. They differ in the order of their
 # floating-point operations only (a few ulps of unit-scale numbers, ~1e-15), while any formula
@@ -347,6 +354,24 @@ def test_grid_and_pairwise_steps_are_bit_equal(integrator):
             assert touched > 0  # bodies did come close
     for fast, plain in zip(*results, strict=True):
         np.testing.assert_array_equal(fast, plain)
+
+
+@pytest.mark.parametrize("dt", [0.005, 0.05], ids=["fits", "outgrows"])
+def test_body_pairs_come_with_this_poses_frames(dt):
+    """`rigid_step` takes the frames (rotations, world inverse inertias, omega) from the
+    caller that found the body pairs (`_body_pairs`). Its buffers start with room for 4 N + 16
+    pairs: at dt 0.05 the crowd has more, the buffers are grown, and the new ones must hold
+    the frames too."""
+    model, state = _state(crowd())
+    nb = len(model.body_mass)
+    buf = contact_buffers(nb, 8 * nb + 16, 4 * nb + 16, largest_body(model))  # as `run_rigid`'s
+    fresh = contact_buffers(nb, 1, 1, largest_body(model))
+    frames_into(model, state.q, state.L, fresh.rot, fresh.inv, fresh.omega)
+    code = INTEGRATOR_CODES["euler"]
+    got, _ = _body_pairs(model, code, *state, dt, buf, pair_list(nb))
+    assert (len(got.pairs) > len(buf.pairs)) == (dt == 0.05)  # grown
+    for field in ("rot", "inv", "omega"):
+        np.testing.assert_array_equal(getattr(got, field), getattr(fresh, field))
 
 
 # what an assembly writes per row

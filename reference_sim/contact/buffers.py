@@ -14,7 +14,9 @@ from reference_sim.jit import compiled, kernel
 # `ContactBuffers.counts`, one int64 each:
 COUNT_PRE_WARM = 0  # contacts that pushed before the last drift (`pre_keys`, `pre_lam`)
 COUNT_POST_WARM = 1  # contacts that pushed after the last drift (`post_keys`, `post_lam`)
-COUNT_PAIRS = 2  # rows of `pairs` the caller filled for this step; -1: found pair by pair here
+# rows of `pairs` the caller filled for this step, having made its frames (`rot`, `inv`, `omega`
+# at the step's pose); -1: pairs found pair by pair and frames made in `rigid.rigid_step`
+COUNT_PAIRS = 2
 COUNT_KEPT_ROWS = 3  # rows below this hold their contact's gap, Jacobian and masses at this pose
 COUNT_STANDBY = 4  # candidates left on standby (`standby`)
 COUNT_SWEEP = 5  # sweeps so far (`mark`)
