@@ -251,7 +251,6 @@ def _body_pairs(model, integrator, x, q, v, L, dt, buf, found):
     found, n = current_pairs(model.bound_radius, x, reach, found, buf.pairs)
     if n > buf.pairs.shape[0]:
         buf = grown(buf, buf.cands.shape[0], 2 * n)
-        frames_into(model, q, L, buf.rot, buf.inv, buf.omega)  # for `rigid_step`, as above
         found, n = current_pairs(model.bound_radius, x, reach, found, buf.pairs)
     buf.counts[COUNT_PAIRS] = n
     return buf, found

@@ -208,8 +208,9 @@ def contact_buffers(n_bodies, capacity, pair_capacity, body_particles):
 
 @kernel
 def _carry_over(old, new):
-    """The warm start, the pairs' count, the statistics and the trusted rates of `old`, into
-    `new` (not the kept rows' count: `new` holds no assembled rows)."""
+    """The warm start, the pairs' count and the frames it vouches for (COUNT_PAIRS), the
+    statistics and the trusted rates of `old`, into `new` (not the kept rows' count: `new`
+    holds no assembled rows)."""
     for k in range(old.counts[COUNT_PRE_WARM]):
         new.pre_keys[k] = old.pre_keys[k]
         for age in range(3):
@@ -222,6 +223,11 @@ def _carry_over(old, new):
                 new.post_lam[k, age, d] = old.post_lam[k, age, d]
     for k in (COUNT_PRE_WARM, COUNT_POST_WARM, COUNT_PAIRS):
         new.counts[k] = old.counts[k]
+    for b in range(old.rot.shape[0]):
+        for i in range(9):
+            new.rot[b, i], new.inv[b, i] = old.rot[b, i], old.inv[b, i]
+        for i in range(3):
+            new.omega[b, i] = old.omega[b, i]
     for k in range(SOLVER_STATISTICS):
         new.solver[k] = old.solver[k]
     for k in range(2):
