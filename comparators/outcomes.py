@@ -186,11 +186,15 @@ def _stopping_rows(run: RunData) -> list[tuple]:
     return rows
 
 
+def _without(vector, unit) -> np.ndarray:
+    """`vector` (or each row of it) less its component along the unit vector `unit`."""
+    vector = np.asarray(vector, dtype=float)
+    return vector - np.multiply.outer(vector @ unit, unit)
+
+
 def _in_plane(vector, plane: Plane) -> np.ndarray:
     """The component of `vector` (or of each row of it) within `plane`."""
-    n = plane.unit_normal
-    vector = np.asarray(vector, dtype=float)
-    return vector - np.multiply.outer(vector @ n, n)
+    return _without(vector, plane.unit_normal)
 
 
 def _downhill(scene: Scene, plane: Plane) -> np.ndarray | None:
@@ -252,14 +256,10 @@ def sideways(run: RunData, body_index: int) -> float:
     if line is None:
         speed = np.linalg.norm(start)
         line = start / speed if speed > 0 else np.zeros(3)
-
-    def across(vector):  # its part across `line`, within the plane
-        return vector - np.multiply.outer(vector @ line, line)
-
-    if np.linalg.norm(across(start)) > DIRECTION_RTOL * np.linalg.norm(start):
+    if np.linalg.norm(_without(start, line)) > DIRECTION_RTOL * np.linalg.norm(start):
         return np.nan
     x = run.arrays(body_index)["x"]
-    off = np.linalg.norm(across(_in_plane(x - x[0], plane)), axis=1)
+    off = np.linalg.norm(_without(_in_plane(x - x[0], plane), line), axis=1)
     known = off[np.isfinite(off)]
     return float(known.max()) if len(known) else np.nan
 

@@ -432,9 +432,8 @@ def test_reused_contact_rows_are_fresh_ones_to_rounding(case, integrator):
     n_steps = min(500, round(scene.duration / scene.dt))
     for reuse in (True, False):
         x, q, v, L = (a.copy() for a in state)
-        buf = contact_buffers(
-            nb, 64 * nb, nb * nb, largest_body(model)
-        )  # room for every step: never grown
+        # room for every step: never grown
+        buf = contact_buffers(nb, 64 * nb, nb * nb, largest_body(model))
         for _ in range(n_steps):
             if reuse:
                 reused += buf.counts[COUNT_KEPT_ROWS] > 0
