@@ -8,9 +8,10 @@ from the particles; static planes only with contact. PhysX computes in single pr
 (`epsilon` = float32's). The two integrators are PhysX's solvers, "tgs" (SAPIEN's default) and
 "pgs" (the PhysX SDK's), both semi-implicit Euler. PhysX's defaults that change results are
 overridden and stated in the parity manifest: angular damping 0.05 -> 0, max angular velocity
-100 rad/s -> 1e7, sleeping off, the bounce threshold 2 m/s -> 2 |g| dt. The explicit
-gyroscopic torque (eENABLE_GYROSCOPIC_FORCES) is off in PhysX by default and SAPIEN 3.0.3 does
-not expose the flag; free bodies still precess (tumbling_box flips, 11 degrees off at dt 0.01).
+100 rad/s -> 1e7, sleeping off, the bounce threshold 2 m/s -> 2 |g| dt. SAPIEN turns PhysX's
+gyroscopic term on (eENABLE_GYROSCOPIC_FORCES, off in PhysX by default) and does not expose it:
+an explicit step of Euler's equations whose angular momentum is rescaled to its magnitude before
+the step, so |L| is kept and the energy is not.
 
 The mapping and the measured effect of each default: docs/engines/physx.md.
 """
@@ -257,8 +258,8 @@ def parity_manifest(
         "precision": "float32",
         "epsilon": EPSILON,
         "dt": dt,
-        "gyroscopic": "no explicit gyroscopic torque: eENABLE_GYROSCOPIC_FORCES is off "
-        "(PhysX's default; SAPIEN 3.0.3 does not expose it)",
+        "gyroscopic": "explicit, |L| rescaled to its value before the step: "
+        "eENABLE_GYROSCOPIC_FORCES, on in every SAPIEN 3.0.3 body (off in PhysX by default)",
         "gravity": [float(g) for g in config.gravity],
         "enhanced_determinism": bool(config.enable_enhanced_determinism),
         "cpu_workers": 0,
@@ -323,7 +324,7 @@ class PhysxEngine:
     name = "physx"
     integrators = ("tgs", "pgs")
     default_integrator = "tgs"
-    orders = {"tgs": 1, "pgs": 1}  # semi-implicit Euler, no gyroscopic term
+    orders = {"tgs": 1, "pgs": 1}  # semi-implicit Euler, explicit gyroscopic term
     missing = UNAVAILABLE
     epsilon = EPSILON
 

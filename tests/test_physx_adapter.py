@@ -1,5 +1,6 @@
 """The PhysX (SAPIEN) adapter: parity on every catalog case, float32 free flight against the exact
-solution, damping really off, a dropped cube at rest, the settings manifest.
+solution, damping really off, the gyroscopic term on, a dropped cube at rest, the settings
+manifest.
 
 Adapter-specific checks only; the cross-engine accuracy gates live elsewhere. The engine is
 registered in-process, so the tests also run where the installed metadata predates its entry
@@ -48,6 +49,9 @@ INERTIA_RTOL = 4 * EPS32
 # The rest height the catalog asks for (half edge 0.5 + particle radius 0.2): measured within
 # 5e-7 m (rest offset 0: the spheres touch the floor at their radius).
 REST_HEIGHT_TOL = 0.005  # m
+# One step of high_spin against PhysX's gyroscopic update done in float64: float32 rounding of
+# omega (50 rad/s) and of the principal frame; measured 2.5e-6 rad/s (pgs) and 2.1e-5 (tgs).
+GYRO_STEP_ATOL = 1e-4  # rad/s; the update itself moves omega by 0.45 rad/s
 
 
 def test_engine_registered():
@@ -119,6 +123,36 @@ def test_angular_velocity_clamp_is_raised():
     clamped = run_physx(scene, "pgs", 0.01, 0.1, PhysxSettings(max_angular_velocity=100.0))
     w = body_arrays(clamped, "cube")["w"]
     np.testing.assert_allclose(np.linalg.norm(w[1:], axis=1), 100.0, rtol=1e-5)
+
+
+def _physx_gyroscopic_step(moments, axes, omega, dt):
+    """PhysX's eENABLE_GYROSCOPIC_FORCES update: an explicit step of Euler's equations in the
+    principal frame, the angular momentum then rescaled to its magnitude before the step."""
+    local = axes.T @ omega
+    momentum = moments * local
+    stepped = momentum - np.cross(local, momentum) * dt
+    stepped *= np.linalg.norm(momentum) / np.linalg.norm(stepped)
+    return axes @ (stepped / moments)
+
+
+@pytest.mark.parametrize("integrator", INTEGRATORS)
+def test_gyroscopic_term_is_on(integrator):
+    """SAPIEN turns PhysX's gyroscopic term on (PhysX's default is off) and does not expose it:
+    high_spin's first step is PhysX's update, and over the first second |L| stays while the
+    energy climbs (the explicit step)."""
+    scene = CATALOG["high_spin"]
+    traj = run(scene, "physx", integrator, duration=1.0)
+    w = body_arrays(traj, "box")["w"]
+    moments, axes = principal_frame(scene.bodies[0].inertia)
+    expected = _physx_gyroscopic_step(moments, axes, w[0], scene.dt)
+    np.testing.assert_allclose(w[1], expected, atol=GYRO_STEP_ATOL)
+    c = conserved_quantities(traj, scene)
+    L = np.linalg.norm(c[["Lx", "Ly", "Lz"]].to_numpy(), axis=1)
+    assert abs(L[-1] / L[0] - 1) < ENERGY_EPS_PER_STEP * traj.meta.steps * EPS32
+    assert (
+        c["energy"].iloc[-1] / c["energy"].iloc[0] - 1
+        > ENERGY_EPS_PER_STEP * traj.meta.steps * EPS32
+    )
 
 
 @pytest.mark.parametrize("integrator", INTEGRATORS)
