@@ -277,15 +277,31 @@ def run_rigid(model, integrator, x, q, v, L, dt, n_steps, stride):
 
     Samples are taken at step 0, every `stride` steps, and at the last step.
     """
-    n_samples = n_steps // stride + 1 + (1 if n_steps % stride else 0)
-    out = np.empty((n_samples, x.shape[0], 13))
-    steps = np.empty(n_samples, dtype=np.int64)
-    threshold = BOUNCE_STEPS * math.sqrt(dot(vec(model.gravity), vec(model.gravity))) * dt
     if not model.contact:
+        out, steps = _sample_arrays(x, n_steps, stride)
         _free_steps(model, integrator, x, q, v, L, dt, n_steps, stride, out, steps)
         return steps, out, np.zeros(SOLVER_STATISTICS, dtype=np.int64)
     nb = x.shape[0]
     buf = contact_buffers(nb, 8 * nb + 16, 4 * nb + 16, largest_body(model))
+    steps, out, buf = run_contact(model, integrator, x, q, v, L, dt, n_steps, stride, buf)
+    return steps, out, buf.solver.copy()
+
+
+@compiled
+def _sample_arrays(x, n_steps, stride):
+    """Room for the samples of a run: step 0, every `stride` steps and the last."""
+    n_samples = n_steps // stride + 1 + (1 if n_steps % stride else 0)
+    return np.empty((n_samples, x.shape[0], 13)), np.empty(n_samples, dtype=np.int64)
+
+
+@compiled
+def run_contact(model, integrator, x, q, v, L, dt, n_steps, stride, buf):
+    """`run_rigid` of a scene with contact, from the contact buffers `buf`, grown whenever a
+    step asks for more room; returns the sampled steps, the samples and the buffers at the
+    end."""
+    out, steps = _sample_arrays(x, n_steps, stride)
+    threshold = BOUNCE_STEPS * math.sqrt(dot(vec(model.gravity), vec(model.gravity))) * dt
+    nb = x.shape[0]
     _record_state(model, x, q, v, L, out[0])
     steps[0] = 0
     progress = np.ones(2, dtype=np.int64)  # the next step and the next sample's slot
@@ -316,7 +332,7 @@ def run_rigid(model, integrator, x, q, v, L, dt, n_steps, stride):
             buf = grown(buf, buf.cands.shape[0], -2 * needed)
         elif needed > 0:
             buf = grown(buf, 2 * needed, buf.pairs.shape[0])
-    return steps, out, buf.solver.copy()
+    return steps, out, buf
 
 
 @compiled

@@ -59,9 +59,8 @@ from reference_sim.rigid import (
     INTEGRATOR_CODES,
     POSE_ROUNDING,
     _body_pairs,
-    _record_state,
-    _steps,
     rigid_step,
+    run_contact,
     run_rigid,
 )
 
@@ -587,47 +586,26 @@ def test_a_skipped_post_drift_solve_would_change_no_speed_by_the_tolerance(case,
     assert skipped > 0
 
 
-def _run_with_capacity(model, integrator, state, dt, n_steps, capacity, pair_capacity):
-    """`run_rigid`'s loop (every step sampled) from contact buffers of the given capacities,
-    grown when a step asks as `run_rigid` grows them; (samples, times grown)."""
-    x, q, v, L = (a.copy() for a in state)
-    nb = x.shape[0]
-    out = np.empty((n_steps + 1, nb, 13))
-    steps = np.empty(n_steps + 1, dtype=np.int64)
-    threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * dt  # as `run_rigid`'s
-    buf = contact_buffers(nb, capacity, pair_capacity, largest_body(model))
-    _record_state(model, x, q, v, L, out[0])
-    steps[0], progress, found, grows = 0, np.ones(2, dtype=np.int64), pair_list(nb), 0
-    while progress[0] <= n_steps:
-        last = n_steps
-        if nb >= GRID_MIN_BODIES:
-            buf, found = _body_pairs(model, integrator, x, q, v, L, dt, buf, found)
-            last = progress[0]
-        args = (dt, threshold, buf, progress, last, n_steps, 1, out, steps)
-        needed = _steps(model, integrator, x, q, v, L, *args)
-        if needed != 0:
-            grows += 1
-            if needed < 0:
-                buf = grown(buf, buf.cands.shape[0], -2 * needed)
-            else:
-                buf = grown(buf, 2 * needed, buf.pairs.shape[0])
-    return out, grows
-
-
 @pytest.mark.parametrize("integrator", ["euler", "exact"])
 @pytest.mark.parametrize("case", ["cube_rain_8", "cube_rain_32"])
 def test_grown_buffers_give_the_run_of_buffers_never_grown(case, integrator):
     """`grown` carries the warm start, the trusted rates and the statistics over, and leaves
     the kept rows behind (the next assembly makes them afresh, the same numbers): a pile run
-    is the same, bit for bit, whether its buffers grow twice, once (`run_rigid`'s start) or
-    never."""
+    is the same, bit for bit, from buffers too small for candidates and body pairs alike as
+    from buffers never grown, and as `run_rigid`'s."""
     scene = resolve_case(case)
     model, state = _state(scene)
     nb = len(model.body_mass)
     code, n_steps = INTEGRATOR_CODES[integrator], round(scene.duration / scene.dt)
-    small, grows_small = _run_with_capacity(model, code, state, scene.dt, n_steps, 4 * nb, 2 * nb)
-    large, grows_large = _run_with_capacity(model, code, state, scene.dt, n_steps, 64 * nb, nb * nb)
-    assert grows_small >= 2 and grows_large == 0
+    runs = []
+    # too small for both, so grown twice at least (each growth grows one of them), or never
+    for capacity, pair_capacity in ((4 * nb, nb // 2), (64 * nb, nb * nb)):
+        buf = contact_buffers(nb, capacity, pair_capacity, largest_body(model))
+        copies = (a.copy() for a in state)
+        _, samples, end = run_contact(model, code, *copies, scene.dt, n_steps, 1, buf)
+        runs.append((samples, len(end.cands) > capacity, len(end.pairs) > pair_capacity))
+    (small, small_cands, small_pairs), (large, large_cands, large_pairs) = runs
+    assert small_cands and small_pairs and not (large_cands or large_pairs)
     _, samples, _ = run_rigid(model, code, *(a.copy() for a in state), scene.dt, n_steps, 1)
     np.testing.assert_array_equal(small, samples)
     np.testing.assert_array_equal(large, samples)
