@@ -8,6 +8,7 @@ from comparators.parity import body_readback
 from comparators.trajectory import Trajectory, package_versions
 from reference_sim.contact.buffers import (
     STAT_EXTRAPOLATIONS,
+    STAT_REFOUND,
     STAT_SOLVES,
     STAT_SUBSPACE_STEPS,
     STAT_SWEEPS,
@@ -98,4 +99,5 @@ def _solver_report(solver) -> dict[str, float]:
         "at_limit": int(solver[STAT_UNCONVERGED]),
         "subspace_per_solve": int(solver[STAT_SUBSPACE_STEPS]) / solves,
         "extrapolations_per_solve": int(solver[STAT_EXTRAPOLATIONS]) / solves,
+        "refound": int(solver[STAT_REFOUND]),
     }

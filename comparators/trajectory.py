@@ -68,8 +68,9 @@ class RunMeta:
     (`comparators.parity.body_readback`): mass, inertia, x, v, w. `solver` is what the engine
     reports about its own contact solver over the run, where it reports anything: `solves`,
     `sweeps_per_solve`, `at_limit` (solves stopped unconverged: at the iteration limit, or
-    stalled), `subspace_per_solve` (the reference's direct solves within its sweeps) and
-    `extrapolations_per_solve` (the reference's jumps along its sweeps' steady rate).
+    stalled), `subspace_per_solve` (the reference's direct solves within its sweeps),
+    `extrapolations_per_solve` (the reference's jumps along its sweeps' steady rate) and
+    `refound` (the reference's steps started again: a solve outran their candidates).
     `messages` is what the engine printed or warned during the run: each distinct line (capped
     in number and length) and how often it came, in order of first appearance
     (`comparators.engine_output`).

@@ -24,7 +24,9 @@ import numpy as np
 from reference_sim.contact.buffers import (
     COUNT_KEPT_ROWS,
     COUNT_PAIRS,
+    PRE_DRIFT,
     SOLVER_STATISTICS,
+    STAT_REFOUND,
     contact_buffers,
     grown,
     largest_body,
@@ -32,7 +34,7 @@ from reference_sim.contact.buffers import (
 from reference_sim.contact.candidates import find_candidates_into
 from reference_sim.contact.frames import frames_into, reach_into, world_omega
 from reference_sim.contact.pair_list import current_pairs, pair_list
-from reference_sim.contact.settings import GRID_MIN_BODIES
+from reference_sim.contact.settings import GRID_MIN_BODIES, REFIND_LIMIT, candidate_margin
 from reference_sim.contact.step import after_drift, before_drift
 from reference_sim.exact_rotation import exact_rotation
 from reference_sim.jit import compiled, inlined_kernel, kernel
@@ -173,6 +175,77 @@ def _kick(model, integrator, v, dt):
                 v[b, i] += dt * model.gravity[i]
 
 
+@kernel
+def _keep_start(v, L, start):
+    """Each body's v and L into `start` (B, 6)."""
+    for b in range(v.shape[0]):
+        for i in range(3):
+            start[b, i], start[b, 3 + i] = v[b, i], L[b, i]
+
+
+@kernel
+def _back_to_start(v, L, start):
+    """Each body's v and L from `start` (`_keep_start`)."""
+    for b in range(v.shape[0]):
+        for i in range(3):
+            v[b, i], L[b, i] = start[b, i], start[b, 3 + i]
+
+
+@inlined_kernel
+def _contact_before_drift(model, integrator, x, q, v, L, dt, threshold, margin, refind, buf):
+    """The contact part of a step up to the drift, candidates reaching `margin` (m) beyond each
+    body's reach: find them (with the frames, unless the caller made them with the body
+    pairs), Euler's kick, and `before_drift`. Returns the candidates' count (see `rigid_step`)
+    and 0, or, if `refind`, how far the solve sped some body beyond them (v and L changed: the
+    step must start again)."""
+    if buf.counts[COUNT_PAIRS] < 0:  # else `_body_pairs` made them at this pose
+        frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
+    kick = (0.0, 0.0, 0.0)
+    if integrator == EULER and model.gravity_on:
+        kick = (dt * model.gravity[0], dt * model.gravity[1], dt * model.gravity[2])
+    nc = find_candidates_into(model, x, v, dt, kick, margin, buf)
+    if nc <= 0 or nc > buf.cands.shape[0]:
+        return nc, 0.0
+    _keep_start(v, L, buf.start)
+    _kick(model, integrator, v, dt)
+    # the drift moves euler's bodies with v, the others' with v + g dt / 2
+    drift_gravity = (0.0, 0.0, 0.0)
+    if integrator != EULER:
+        drift_gravity = (
+            0.5 * dt * model.gravity[0],
+            0.5 * dt * model.gravity[1],
+            0.5 * dt * model.gravity[2],
+        )
+    # `buf.pose`: the pose the kept rows were assembled at, within POSE_ROUNDING; with no
+    # row kept from the last step, the first assembly makes them all here
+    if buf.counts[COUNT_KEPT_ROWS] == 0:
+        _pose_into(x, q, buf.pose)
+    excess = before_drift(model, x, v, L, nc, dt, drift_gravity, threshold, buf, refind)
+    return nc, excess
+
+
+@kernel
+def _refind(model, integrator, x, q, v, L, dt, threshold, margin, excess, rate, buf):
+    """A step whose solve sped a body `excess` (m) beyond candidates found `margin` beyond each
+    body's reach, started again from its start (`buf.start`, and the solve's trusted rate
+    `rate`) with the margin more than doubled to cover it, every body pair tested at the wider
+    reach; up to REFIND_LIMIT times, each counted in STAT_REFOUND. Returns the candidates'
+    count (see `rigid_step`)."""
+    for attempt in range(REFIND_LIMIT):
+        _back_to_start(v, L, buf.start)
+        buf.rates[PRE_DRIFT] = rate
+        margin = 2.0 * (margin + excess)
+        buf.counts[COUNT_PAIRS] = -1  # and the frames made again: the solve changed omega
+        buf.solver[STAT_REFOUND] += 1
+        refind = attempt + 1 < REFIND_LIMIT
+        nc, excess = _contact_before_drift(
+            model, integrator, x, q, v, L, dt, threshold, margin, refind, buf
+        )
+        if not excess > 0.0:
+            return nc
+    return nc
+
+
 @inlined_kernel
 def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, buf):
     """Advance every body by dt in place; contact impulses before and after the drift.
@@ -181,32 +254,26 @@ def rigid_step(model, integrator, x, q, v, L, dt, bounce_threshold, buf):
     the caller found them (`_body_pairs`, COUNT_PAIRS), and last step's impulses for the warm
     start. Returns 0, or (if `buf` is too small, before changing anything) the candidates'
     count it needs, or minus the body pairs' count.
+
+    Candidates reach `candidate_margin` beyond each body's reach; a step whose solve before the
+    drift speeds a body further starts again with a wider margin (`_refind`): the drift then
+    meets no particle that is not a candidate.
     """
     nc = 0
     if model.contact:
-        if buf.counts[COUNT_PAIRS] < 0:  # else `_body_pairs` made them at this pose
-            frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
-        kick = (0.0, 0.0, 0.0)
-        if integrator == EULER and model.gravity_on:
-            kick = (dt * model.gravity[0], dt * model.gravity[1], dt * model.gravity[2])
-        nc = find_candidates_into(model, x, v, dt, kick, buf)
+        rate = buf.rates[PRE_DRIFT]
+        margin = candidate_margin(dt)
+        nc, excess = _contact_before_drift(
+            model, integrator, x, q, v, L, dt, bounce_threshold, margin, np.bool_(True), buf
+        )
+        if excess > 0.0:
+            nc = _refind(
+                model, integrator, x, q, v, L, dt, bounce_threshold, margin, excess, rate, buf
+            )
         if nc < 0 or nc > buf.cands.shape[0]:
             return nc
-    _kick(model, integrator, v, dt)
-    if nc > 0:
-        # the drift moves euler's bodies with v, the others' with v + g dt / 2
-        drift_gravity = (0.0, 0.0, 0.0)
-        if integrator != EULER:
-            drift_gravity = (
-                0.5 * dt * model.gravity[0],
-                0.5 * dt * model.gravity[1],
-                0.5 * dt * model.gravity[2],
-            )
-        # `buf.pose`: the pose the kept rows were assembled at, within POSE_ROUNDING; with no
-        # row kept from the last step, the first assembly makes them all here
-        if buf.counts[COUNT_KEPT_ROWS] == 0:
-            _pose_into(x, q, buf.pose)
-        before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf)
+    if nc == 0:
+        _kick(model, integrator, v, dt)
     _drift(model, integrator, x, q, v, L, dt)
     # `before_drift` assembled every candidate's rows; they serve after the drift while no body
     # has moved by POSE_ROUNDING since `buf.pose` (a body at rest)
@@ -246,8 +313,9 @@ def _body_pairs(model, integrator, x, q, v, L, dt, buf, found):
     if needed) for `rigid_step` with the frames at this pose; returns the buffers and the list."""
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
     g = model.gravity if integrator == EULER and model.gravity_on else np.zeros(3)
-    reach = np.empty(x.shape[0])
+    reach = np.empty(x.shape[0])  # widened as `find_candidates_into` widens it
     reach_into(model, v, buf.omega, dt, (dt * g[0], dt * g[1], dt * g[2]), reach)
+    reach += candidate_margin(dt)
     found, n = current_pairs(model.bound_radius, x, reach, found, buf.pairs)
     if n > buf.pairs.shape[0]:
         buf = grown(buf, buf.cands.shape[0], 2 * n)

@@ -125,8 +125,8 @@ def compile_stage(stage: str) -> None:
         # part (the candidates compile inlined in the step, calling the kernels compiled here)
         buf = contact_buffers.py_func(1, 16, 4, largest_body.py_func(model))
         frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
-        nc = find_candidates_into.py_func(model, x, v, dt, (0.0, 0.0, 0.0), buf)
-        before_drift(model, x, v, L, nc, dt, (0.0, 0.0, -0.05), 0.2, buf)
+        nc = find_candidates_into.py_func(model, x, v, dt, (0.0, 0.0, 0.0), 0.05, buf)
+        before_drift(model, x, v, L, nc, dt, (0.0, 0.0, -0.05), 0.2, buf, np.bool_(True))
         after_drift(model, x, q, v, L, nc, dt, buf)
     elif stage == "free":
         x, q, v, L = (a.copy() for a in state)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scenes import head_on, initial_state
 
-from cases import CATALOG, Body, Contact, Scene, resolve_case
+from cases import CATALOG, Body, Contact, Plane, Scene, resolve_case
 from cases.builders import box_corners, floor
 from cases.exact import exact_states
 from comparators import run
@@ -30,6 +30,7 @@ from reference_sim.contact.buffers import (
     PRE_DRIFT,
     STAT_EXTRAPOLATIONS,
     STAT_QUIET,
+    STAT_REFOUND,
     STAT_SOLVES,
     STAT_SWEEPS,
     STAT_UNCONVERGED,
@@ -117,7 +118,8 @@ def test_gauss_seidel_ends_on_targets_no_rigid_motion_meets():
     x, q, v, L = initial_state(model, scene)
     buf = buffers.contact_buffers(1, 16, 4, largest_body(model))
     frames.frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
-    nc = candidates.find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
+    margin = settings.candidate_margin(scene.dt)
+    nc = candidates.find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), margin, buf)
     assert nc == 4  # the bottom face's corners
     buf.acting[:nc] = True
     assemble(model, x, nc, settings.TOUCH_TOLERANCE, buf, 0)
@@ -150,7 +152,8 @@ def _settled(name, friction=None):
     x, q, v, L = initial_state(model, scene)
     buf = buffers.contact_buffers(len(scene.bodies), 64, 16, largest_body(model))
     frames.frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
-    nc = candidates.find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
+    margin = settings.candidate_margin(scene.dt)
+    nc = candidates.find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), margin, buf)
     buf.acting[:nc] = True
     assemble(model, x, nc, settings.TOUCH_TOLERANCE, buf, 0)
     buf.target[:nc] = 0.0
@@ -428,6 +431,8 @@ def _python_solves(monkeypatch, **changed):
     monkeypatch.setattr(contact_step, "solve", contact_step.solve.py_func)
     for name in ("before_drift", "after_drift"):
         monkeypatch.setattr(rigid, name, getattr(contact_step, name).py_func)
+    for name in ("_contact_before_drift", "_refind"):  # the step's callers of `before_drift`
+        monkeypatch.setattr(rigid, name, getattr(rigid, name).py_func)
 
 
 def _rerun_in_python(monkeypatch, step, **changed):
@@ -641,3 +646,43 @@ def test_a_contact_on_standby_wakes_when_the_solve_swings_its_body_into_it():
     overshoot = model.bound_radius[0] * (omega * dt) ** 2 / 2  # the drift's second order
     assert gaps[far].min() > -overshoot
     assert overshoot < 0.1 * (7.8 - lift / dt) * dt  # a tenth of a missed contact's 1.8 cm
+
+
+def test_a_body_the_solve_speeds_beyond_its_candidates_reach_is_found_again():
+    """Cube a rests 7.5 cm from a wall; cube b, touching it, strikes it at 20 m/s (no gravity,
+    e = 0). a's candidates are found within its reach at rest (0) widened by
+    `candidate_margin` (5 cm at dt 0.01): the wall's contacts are not among them. The solve
+    sends a on at 10 m/s, 10 cm in the step: the step must be found again with the wall's
+    contacts (STAT_REFOUND) and end with a on the wall and b on a, not 2.5 cm into them."""
+    dt, radius, edge, gap, speed = 0.01, 0.1, 0.5, 0.075, 20.0
+    assert settings.candidate_margin(dt) < gap < speed / 2 * dt
+    wall = edge / 2 + radius + gap  # a's right face at x = edge / 2
+    scene = Scene(
+        name="struck_into_a_wall",
+        duration=dt,
+        dt=dt,
+        gravity=(0.0, 0.0, 0.0),
+        contact=Contact(restitution=0.0, friction=0.0),
+        planes=(Plane(point=(wall, 0.0, 0.0), normal=(-1.0, 0.0, 0.0)),),
+        bodies=(
+            Body(name="a", particle_radius=radius, particles=box_corners((edge,) * 3)),
+            Body(
+                name="b",
+                particle_radius=radius,
+                particles=box_corners((edge,) * 3, center=(-edge - 2 * radius, 0.0, 0.0)),
+                velocity=(speed, 0.0, 0.0),
+            ),
+        ),
+    )
+    model = model_from_scene(scene)
+    x, q, v, L = initial_state(model, scene)
+    buf = buffers.contact_buffers(2, 64, 4, largest_body(model))
+    assert rigid_step(model, INTEGRATOR_CODES["euler"], x, q, v, L, dt, 0.0, buf) == 0
+    assert buf.solver[STAT_REFOUND] == 1
+    particles = [
+        x[k] + model.offsets[model.body_start[k] : model.body_start[k + 1]] for k in (0, 1)
+    ]
+    # the cubes only translate along x: gaps exact to the rounding of the coordinates
+    rounding = 1e-12
+    assert (wall - particles[0][:, 0] - radius).min() > -rounding
+    assert particles[0][:, 0].min() - particles[1][:, 0].max() - 2 * radius > -rounding

@@ -51,6 +51,7 @@ from reference_sim.contact.settings import (
     GRID_MIN_BODIES,
     IDLE_MARGIN,
     TOUCH_TOLERANCE,
+    candidate_margin,
     solver_tolerance,
 )
 from reference_sim.contact.step import _pushes_nothing, solve
@@ -203,10 +204,11 @@ def _lattice_crowd() -> Scene:
     return replace(scene, bodies=tuple(bodies))
 
 
-def _every_particle_pair(model, x, rot, reach, pairs):
-    """The particle candidates of body `pairs` with every particle pair tested, in numpy, as
-    (rows, margins): rows (a, i, b, j) in key order, and each tested pair's squared distance
-    over its squared bound, minus one (how near to the bound it fell)."""
+def _every_particle_pair(model, x, rot, wide, pairs):
+    """The particle candidates of body `pairs` (widened reaches `wide`) with every particle
+    pair tested, in numpy, as (rows, margins): rows (a, i, b, j) in key order, and each tested
+    pair's squared distance over its squared bound, minus one (how near to the bound it
+    fell)."""
     rows, margins = [], []
     for a, b in pairs:
         ia = np.arange(model.body_start[a], model.body_start[a + 1])
@@ -214,7 +216,7 @@ def _every_particle_pair(model, x, rot, reach, pairs):
         pa = x[a] + model.offsets[ia] @ rot[a].reshape(3, 3).T
         pb = x[b] + model.offsets[ib] @ rot[b].reshape(3, 3).T
         ri, rj = model.radius[ia][:, None], model.radius[ib][None, :]
-        within = reach[a] + reach[b] + np.minimum(ri, rj) + ri + rj
+        within = wide[a] + wide[b] + ri + rj
         squared = ((pa[:, None, :] - pb[None, :, :]) ** 2).sum(axis=2)
         margins.append((squared / within**2 - 1.0).ravel())
         for i, j in zip(*np.nonzero(squared < within**2), strict=True):
@@ -236,11 +238,12 @@ def test_particle_candidates_are_every_particle_pairs(scene):
         while nc > len(buf.cands):  # grown to the count asked for, as `run_rigid` does
             buf = grown(buf, nc, nb * nb)
             frames_into(model, state.q, state.L, buf.rot, buf.inv, buf.omega)
-            nc = find_candidates_into(model, state.x, state.v, dt, (0.0, 0.0, 0.0), buf)
+            margin = candidate_margin(dt)
+            nc = find_candidates_into(model, state.x, state.v, dt, (0.0, 0.0, 0.0), margin, buf)
         assert nc > 0
         found = buf.cands[:nc][buf.cands[:nc, 2] >= 0]
-        pairs = all_pairs(model, state.x, buf.reach)
-        every, margins = _every_particle_pair(model, state.x, buf.rot, buf.reach, pairs)
+        pairs = all_pairs(model, state.x, buf.wide)
+        every, margins = _every_particle_pair(model, state.x, buf.rot, buf.wide, pairs)
         assert np.abs(margins).min() > 1e-12
         assert len(every) > 0
         np.testing.assert_array_equal(found, every)
@@ -302,6 +305,7 @@ def test_pair_list_gives_the_grids_pairs_at_every_step(integrator):
         kick = tuple(scene.dt * model.gravity) if integrator == "euler" else (0.0,) * 3
         reach = np.empty(nb)
         reach_into(model, v, buf.omega, scene.dt, kick, reach)
+        reach += candidate_margin(scene.dt)  # as `rigid_step` widens it
         last = found
         found, n = current_pairs(model.bound_radius, x, reach, last, buf.pairs)
         kept += found.x0 is last.x0
@@ -347,6 +351,7 @@ def test_grid_and_pairwise_steps_are_bit_equal(integrator):
                 kick = tuple(scene.dt * model.gravity) if integrator == "euler" else (0.0,) * 3
                 reach = np.empty(nb)
                 reach_into(model, v, buf.omega, scene.dt, kick, reach)
+                reach += candidate_margin(scene.dt)  # as `rigid_step` widens it
                 pairs = grid_pairs(model, x, reach)
                 buf.pairs[: len(pairs)] = pairs
                 buf.counts[COUNT_PAIRS] = len(pairs)
@@ -359,7 +364,7 @@ def test_grid_and_pairwise_steps_are_bit_equal(integrator):
         np.testing.assert_array_equal(fast, plain)
 
 
-@pytest.mark.parametrize("dt", [0.005, 0.05], ids=["fits", "outgrows"])
+@pytest.mark.parametrize("dt", [0.001, 0.05], ids=["fits", "outgrows"])
 def test_body_pairs_come_with_this_poses_frames(dt):
     """`rigid_step` takes the frames (rotations, world inverse inertias, omega) from the
     caller that found the body pairs (`_body_pairs`). Its buffers start with room for 4 N + 16
@@ -472,7 +477,9 @@ def test_rows_past_the_last_assembly_are_assembled_afresh():
     x, q, v, L = (a.copy() for a in state)
     buf = contact_buffers(1, 64, 16, largest_body(model))
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
-    nc = find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
+    nc = find_candidates_into(
+        model, x, v, scene.dt, (0.0, 0.0, 0.0), candidate_margin(scene.dt), buf
+    )
     assert nc >= 2  # the corners on the floor
     buf.acting[:nc] = True
     assemble(model, x, nc, TOUCH_TOLERANCE, buf, 0)  # every row, at this pose
@@ -507,7 +514,9 @@ def test_sweeps_that_skip_idle_contacts_end_where_full_sweeps_end(steps):
             rigid_step(model, INTEGRATOR_CODES["euler"], x, q, v, L, scene.dt, threshold, buf) == 0
         )
     frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
-    nc = find_candidates_into(model, x, v, scene.dt, (0.0, 0.0, 0.0), buf)
+    nc = find_candidates_into(
+        model, x, v, scene.dt, (0.0, 0.0, 0.0), candidate_margin(scene.dt), buf
+    )
     buf.acting[:nc] = True
     assemble(model, x, nc, TOUCH_TOLERANCE, buf, 0)
     gap = buf.gap[:nc]

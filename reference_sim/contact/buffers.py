@@ -29,7 +29,8 @@ STAT_UNCONVERGED = 2  # solves stopped at MAX_ITERATIONS, stalled or cycling
 STAT_SUBSPACE_STEPS = 3
 STAT_EXTRAPOLATIONS = 4
 STAT_QUIET = 5  # updates skipped as quiet (`gauss_seidel._pile_sweep`)
-SOLVER_STATISTICS = 6
+STAT_REFOUND = 6  # steps whose candidates were found again: the solve outran them (`rigid_step`)
+SOLVER_STATISTICS = 7
 
 # `ContactBuffers.rates` and the solves' `slot`: the solve before the drift and the one after.
 PRE_DRIFT = 0
@@ -45,6 +46,8 @@ class ContactBuffers(NamedTuple):
     Attributes:
       rot, inv: (B, 9) each body's rotation matrix and world inverse inertia.
       omega: (B, 3) world angular velocities. reach: (B,) how far a body can move in the step (m).
+      wide: (B,) the reach the candidates were found with (`candidate_margin` wider).
+      start: (B, 6) each body's v and L at the step's start, for a step found again.
       pairs: (P, 2) body pairs that can meet.
       cands: (C, 4) candidates: body a, particle i, body b or -1, particle j or plane index.
       keys: (C,) each candidate's key, increasing (it identifies the contact across steps).
@@ -88,6 +91,8 @@ class ContactBuffers(NamedTuple):
     inv: np.ndarray
     omega: np.ndarray
     reach: np.ndarray
+    wide: np.ndarray
+    start: np.ndarray
     pairs: np.ndarray
     cands: np.ndarray
     keys: np.ndarray
@@ -157,6 +162,8 @@ def contact_buffers(n_bodies, capacity, pair_capacity, body_particles):
         inv=np.empty((n_bodies, 9)),
         omega=np.empty((n_bodies, 3)),
         reach=np.empty(n_bodies),
+        wide=np.empty(n_bodies),
+        start=np.empty((n_bodies, 6)),
         pairs=np.empty((pair_capacity, 2), dtype=np.int64),
         cands=np.empty((c, 4), dtype=np.int64),
         keys=np.empty(c, dtype=np.int64),

@@ -13,7 +13,7 @@ from reference_sim.contact.buffers import (
     STAT_SWEEPS,
     STAT_UNCONVERGED,
 )
-from reference_sim.contact.frames import angular_momenta, frames_into
+from reference_sim.contact.frames import angular_momenta, body_reach, frames_into, step_fall
 from reference_sim.contact.gauss_seidel import iterate, iterate_pile, sticking
 from reference_sim.contact.impulses import row_speed, set_impulses
 from reference_sim.contact.rows import assemble
@@ -34,6 +34,7 @@ from reference_sim.contact.settings import (
 )
 from reference_sim.contact.warm_start import remember, warm_start
 from reference_sim.jit import inlined_kernel, shared_kernel
+from reference_sim.vec3 import dot, row
 
 
 @inlined_kernel
@@ -94,8 +95,28 @@ def solve(model, x, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm, slot):
     buf.solver[STAT_UNCONVERGED] += not converged
 
 
+@inlined_kernel
+def _outrun(model, v, dt, buf):
+    """How far (m) the solve has sped some body beyond the reach its candidates were found with
+    (`buf.wide`): its reach at the velocities the drift will use (`body_reach`) minus that, the
+    largest over the bodies; at most 0 if the candidates hold every contact of the drift."""
+    fall = step_fall(model, dt)
+    excess = -np.inf
+    for b in range(v.shape[0]):
+        # |v| + R |omega| <= sqrt(2 (|v|^2 + R^2 |omega|^2)): most bodies pass without a root
+        budget = (buf.wide[b] - fall) / dt
+        w = row(buf.omega, b)
+        squares = dot(row(v, b), row(v, b)) + model.bound_radius[b] ** 2 * dot(w, w)
+        if budget >= 0.0 and 2.0 * squares <= budget * budget:
+            continue
+        excess = max(
+            excess, body_reach(model, v, buf.omega, dt, (0.0, 0.0, 0.0), fall, b) - buf.wide[b]
+        )
+    return excess
+
+
 @shared_kernel
-def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
+def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf, refind):
     """Speculative impulses on the first nc candidates of `buf`, on the velocity the drift will
     use: v + drift_gravity (m/s), the part of this step's gravity the integrator adds during the
     drift. Every candidate acts, with target normal speed -gap / dt (a gap already negative is
@@ -107,6 +128,10 @@ def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
     times its approach speed for an impact (a contact closing within the step faster than
     `bounce_threshold`), else 0 (the bounce is applied after the drift, when the contact has
     arrived), and in `buf.acting` the contacts that pushed or bounce.
+
+    If the solve sped some body beyond the reach the candidates were found with (`_outrun`)
+    and the caller will `refind` them, it stops there (v and L changed, the warm start for the
+    next step not kept) and returns by how much (m); else it returns 0.
     """
     for b in range(v.shape[0]):
         for i in range(3):
@@ -124,12 +149,16 @@ def before_drift(model, x, v, L, nc, dt, drift_gravity, bounce_threshold, buf):
             buf.target[k] = -gap / dt if gap > 0.0 else -BAUMGARTE * gap / dt
     n_warm = buf.counts[COUNT_PRE_WARM]
     solve(model, x, v, L, nc, dt, buf, buf.pre_keys, buf.pre_lam, n_warm, np.int64(PRE_DRIFT))
+    excess = _outrun(model, v, dt, buf)
+    if refind and excess > 0.0:
+        return excess
     buf.counts[COUNT_PRE_WARM] = remember(nc, buf, buf.pre_keys, buf.pre_lam)
     for k in range(nc):
         buf.acting[k] = buf.lam[k, 0] > 0.0 or buf.bounce[k] > 0.0
     for b in range(v.shape[0]):
         for i in range(3):
             v[b, i] -= drift_gravity[i]
+    return 0.0
 
 
 @inlined_kernel
