@@ -604,6 +604,19 @@ def test_a_trusted_rate_extrapolates_sooner_to_the_same_motion():
     np.testing.assert_allclose(w, w_again, rtol=0, atol=tolerance)
 
 
+def _one_stopping_step(name, dt, planes, bodies) -> Scene:
+    """A scene of one step of dt without gravity whose contacts only stop (e = 0, mu = 0)."""
+    return Scene(
+        name=name,
+        duration=dt,
+        dt=dt,
+        gravity=(0.0, 0.0, 0.0),
+        contact=Contact(restitution=0.0, friction=0.0),
+        planes=planes,
+        bodies=bodies,
+    )
+
+
 def test_a_contact_on_standby_wakes_when_the_solve_swings_its_body_into_it():
     """A rod falling flat at 5 m/s, its near end touching the floor, its far end 6 cm up, its
     mass mostly at its middle: at the step's velocities the far end moves 5 cm, so its
@@ -619,15 +632,7 @@ def test_a_contact_on_standby_wakes_when_the_solve_swings_its_body_into_it():
     ]
     rows += [(0.0, y, radius + 0.2 + lift / 2, 10.0) for y in (-0.1, 0.1)]  # out of reach
     rod = Body(name="rod", particle_radius=radius, particles=rows, velocity=(0.0, 0.0, -5.0))
-    scene = Scene(
-        name="swung_rod",
-        duration=dt,
-        dt=dt,
-        gravity=(0.0, 0.0, 0.0),
-        contact=Contact(restitution=0.0, friction=0.0),
-        planes=(floor(0.0),),
-        bodies=(rod,),
-    )
+    scene = _one_stopping_step("swung_rod", dt, (floor(0.0),), (rod,))
     model = model_from_scene(scene)
     x, q, v, L = initial_state(model, scene)
     buf = buffers.contact_buffers(1, 16, 4, largest_body(model))
@@ -657,23 +662,15 @@ def test_a_body_the_solve_speeds_beyond_its_candidates_reach_is_found_again():
     dt, radius, edge, gap, speed = 0.01, 0.1, 0.5, 0.075, 20.0
     assert settings.candidate_margin(dt) < gap < speed / 2 * dt
     wall = edge / 2 + radius + gap  # a's right face at x = edge / 2
-    scene = Scene(
-        name="struck_into_a_wall",
-        duration=dt,
-        dt=dt,
-        gravity=(0.0, 0.0, 0.0),
-        contact=Contact(restitution=0.0, friction=0.0),
-        planes=(Plane(point=(wall, 0.0, 0.0), normal=(-1.0, 0.0, 0.0)),),
-        bodies=(
-            Body(name="a", particle_radius=radius, particles=box_corners((edge,) * 3)),
-            Body(
-                name="b",
-                particle_radius=radius,
-                particles=box_corners((edge,) * 3, center=(-edge - 2 * radius, 0.0, 0.0)),
-                velocity=(speed, 0.0, 0.0),
-            ),
-        ),
+    struck = Body(name="a", particle_radius=radius, particles=box_corners((edge,) * 3))
+    striking = Body(
+        name="b",
+        particle_radius=radius,
+        particles=box_corners((edge,) * 3, center=(-edge - 2 * radius, 0.0, 0.0)),
+        velocity=(speed, 0.0, 0.0),
     )
+    wall_plane = Plane(point=(wall, 0.0, 0.0), normal=(-1.0, 0.0, 0.0))
+    scene = _one_stopping_step("struck_into_a_wall", dt, (wall_plane,), (struck, striking))
     model = model_from_scene(scene)
     x, q, v, L = initial_state(model, scene)
     buf = buffers.contact_buffers(2, 64, 4, largest_body(model))
