@@ -9,6 +9,7 @@ from reference_sim.contact.buffers import contact_buffers, grown, largest_body
 from reference_sim.contact.candidates import find_candidates_into
 from reference_sim.contact.frames import frames_into
 from reference_sim.contact.pair_list import pair_list
+from reference_sim.contact.settings import candidate_margin
 from reference_sim.contact.step import after_drift, before_drift
 from reference_sim.model import (
     Model,
@@ -125,7 +126,8 @@ def compile_stage(stage: str) -> None:
         # part (the candidates compile inlined in the step, calling the kernels compiled here)
         buf = contact_buffers.py_func(1, 16, 4, largest_body.py_func(model))
         frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
-        nc = find_candidates_into.py_func(model, x, v, dt, (0.0, 0.0, 0.0), 0.05, buf)
+        margin = candidate_margin.py_func(dt)
+        nc = find_candidates_into.py_func(model, x, v, dt, (0.0, 0.0, 0.0), margin, buf)
         before_drift(model, x, v, L, nc, dt, (0.0, 0.0, -0.05), 0.2, buf, np.bool_(True))
         after_drift(model, x, q, v, L, nc, dt, buf)
     elif stage == "free":

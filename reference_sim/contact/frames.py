@@ -51,26 +51,14 @@ def particle(model, x, rot, b, i):
 
 
 @kernel
-def step_fall(model, dt):
-    """How far (m) the step's gravity alone moves a body from rest: |g| dt^2."""
-    return dt * dt * math.sqrt(dot(vec(model.gravity), vec(model.gravity)))
-
-
-@kernel
-def body_reach(model, v, omega, dt, kick, fall, b):
-    """How far (m) any surface point of body b can move in a step: linear speed (after the
-    velocity change `kick` the integrator makes before contact) plus rotational speed, plus
-    `fall` (`step_fall`)."""
-    vb = add(row(v, b), kick)
-    speed = math.sqrt(dot(vb, vb)) + model.bound_radius[b] * math.sqrt(
-        dot(row(omega, b), row(omega, b))
-    )
-    return dt * speed + fall
-
-
-@kernel
 def reach_into(model, v, omega, dt, kick, reach):
-    """Each body's `body_reach` into `reach`."""
-    fall = step_fall(model, dt)
+    """How far (m) any surface point of each body can move in a step: linear speed (after the
+    velocity change `kick` the integrator makes before contact) plus rotational speed, plus the
+    step's gravity."""
+    fall = dt * dt * math.sqrt(dot(vec(model.gravity), vec(model.gravity)))
     for b in range(v.shape[0]):
-        reach[b] = body_reach(model, v, omega, dt, kick, fall, b)
+        vb = add(row(v, b), kick)
+        speed = math.sqrt(dot(vb, vb)) + model.bound_radius[b] * math.sqrt(
+            dot(row(omega, b), row(omega, b))
+        )
+        reach[b] = dt * speed + fall

@@ -13,7 +13,7 @@ from reference_sim.contact.buffers import (
     STAT_SWEEPS,
     STAT_UNCONVERGED,
 )
-from reference_sim.contact.frames import angular_momenta, body_reach, frames_into, step_fall
+from reference_sim.contact.frames import angular_momenta, frames_into, reach_into
 from reference_sim.contact.gauss_seidel import iterate, iterate_pile, sticking
 from reference_sim.contact.impulses import row_speed, set_impulses
 from reference_sim.contact.rows import assemble
@@ -34,7 +34,6 @@ from reference_sim.contact.settings import (
 )
 from reference_sim.contact.warm_start import remember, warm_start
 from reference_sim.jit import inlined_kernel, shared_kernel
-from reference_sim.vec3 import dot, row
 
 
 @inlined_kernel
@@ -98,20 +97,13 @@ def solve(model, x, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm, slot):
 @inlined_kernel
 def _outrun(model, v, dt, buf):
     """How far (m) the solve has sped some body beyond the reach its candidates were found with
-    (`buf.wide`): its reach at the velocities the drift will use (`body_reach`) minus that, the
-    largest over the bodies; at most 0 if the candidates hold every contact of the drift."""
-    fall = step_fall(model, dt)
+    (`buf.wide`): its reach at the velocities the drift will use (into `buf.reach`, as `wake`
+    makes it) minus that, the largest over the bodies; at most 0 if the candidates hold every
+    contact of the drift."""
+    reach_into(model, v, buf.omega, dt, (0.0, 0.0, 0.0), buf.reach)
     excess = -np.inf
     for b in range(v.shape[0]):
-        # |v| + R |omega| <= sqrt(2 (|v|^2 + R^2 |omega|^2)): most bodies pass without a root
-        budget = (buf.wide[b] - fall) / dt
-        w = row(buf.omega, b)
-        squares = dot(row(v, b), row(v, b)) + model.bound_radius[b] ** 2 * dot(w, w)
-        if budget >= 0.0 and 2.0 * squares <= budget * budget:
-            continue
-        excess = max(
-            excess, body_reach(model, v, buf.omega, dt, (0.0, 0.0, 0.0), fall, b) - buf.wide[b]
-        )
+        excess = max(excess, buf.reach[b] - buf.wide[b])
     return excess
 
 
