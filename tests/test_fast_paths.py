@@ -234,11 +234,11 @@ def test_particle_candidates_are_every_particle_pairs(scene):
     nb = len(model.body_mass)
     for dt in (0.005, 0.05, 0.1):
         buf = contact_buffers(nb, 16, nb * nb, largest_body(model))
+        margin = candidate_margin(dt)
         nc = len(buf.cands) + 1
         while nc > len(buf.cands):  # grown to the count asked for, as `run_rigid` does
             buf = grown(buf, nc, nb * nb)
             frames_into(model, state.q, state.L, buf.rot, buf.inv, buf.omega)
-            margin = candidate_margin(dt)
             nc = find_candidates_into(model, state.x, state.v, dt, (0.0, 0.0, 0.0), margin, buf)
         assert nc > 0
         found = buf.cands[:nc][buf.cands[:nc, 2] >= 0]
