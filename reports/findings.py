@@ -93,15 +93,20 @@ class _Item:
 
 
 def _gather(items: list[_Item], kind: str, describe) -> list[Finding]:
-    """One finding per engine: its integrators and cases among `items`, `describe(its items)`
-    the sentence after them."""
-    by_engine: dict[str, list[_Item]] = {}
+    """One finding per engine and set of cases: the engine's integrators among `items` that
+    share the same cases, so that each integrator named did it on each case linked;
+    `describe(their items)` the sentence after them."""
+    by_run: dict[tuple[str, str], list[_Item]] = {}
     for item in items:
-        by_engine.setdefault(item.engine, []).append(item)
-    found = []
-    for engine, own in by_engine.items():
-        integrators = ", ".join(dict.fromkeys(i.integrator for i in own))
+        by_run.setdefault((item.engine, item.integrator), []).append(item)
+    groups: dict[tuple[str, tuple[str, ...]], list[_Item]] = {}
+    for (engine, _), own in by_run.items():
         cases = tuple(dict.fromkeys(i.case for i in own))
+        groups.setdefault((engine, cases), []).extend(own)
+    engines = list(dict.fromkeys(i.engine for i in items))  # an engine's findings together
+    found = []
+    for (engine, cases), own in sorted(groups.items(), key=lambda g: engines.index(g[0][0])):
+        integrators = ", ".join(dict.fromkeys(i.integrator for i in own))
         found.append(Finding(kind, f"**{engine}** {integrators}: {describe(own)}", cases))
     return found
 

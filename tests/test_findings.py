@@ -144,6 +144,16 @@ def test_integrators_of_one_engine_share_a_finding():
     assert "+6%" in found.text
 
 
+def test_integrators_on_different_cases_are_found_apart():
+    results, outcomes, fits = right_sweep()
+    results.loc[at(results, "slide", "mujoco", "Euler"), "verdict"] = "diverged"
+    results.loc[at(results, "bounce", "mujoco", "Euler"), "verdict"] = "diverged"
+    results.loc[at(results, "bounce", "mujoco", "RK4"), "verdict"] = "diverged"
+    found = findings(results, outcomes, SCENES, fits)
+    said = [(f.text.split(":")[0], f.cases) for f in found]
+    assert said == [("**mujoco** Euler", ("bounce", "slide")), ("**mujoco** RK4", ("bounce",))]
+
+
 def test_values_that_read_the_same_are_said_once():
     results, outcomes, fits = right_sweep()
     for integrator, distance in (("Euler", 0.9521), ("RK4", 0.9549)):  # +5.8 % and +6.1 %
