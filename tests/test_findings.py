@@ -13,6 +13,8 @@ import pytest
 from cases.catalog import CATALOG
 from comparators.sweep import RESULT_COLUMNS, SweepResult
 from comparators.verdict import ENERGY_LOSS_LIMIT
+from gates import PHYSICS_DIR
+from gates.spec import is_outcome_measure, load_gates, measure_parts
 from reports.findings import (
     ABSOLUTE_TOLERANCES,
     ENERGY_DRIFT_NOTE,
@@ -204,3 +206,20 @@ def test_the_summary_shows_no_number_where_nothing_was_measured():
     text = "\n".join(summary_section(_result(results, outcomes), fits))
     row = next(line for line in text.splitlines() if line.startswith("| [slide](#case-slide)"))
     assert "nan" not in row and "| – |" in row
+
+
+def test_findings_tell_what_the_physics_gates_fail():
+    """A quantity both judge is held to one limit: a report must not find fault with a run that
+    its own gates table passes, nor pass one that it fails."""
+    compared = 0
+    for gate in load_gates([PHYSICS_DIR]):
+        for limit in gate.limits:
+            if not is_outcome_measure(limit.measure) or limit.measure == "slides":
+                continue  # `slides` is 0 or 1: the findings' 0.5 is "must match", not a bound
+            quantity, part = measure_parts(limit.measure)
+            own = RELATIVE_TOLERANCES if part == "relative_error" else ABSOLUTE_TOLERANCES
+            if quantity in own:
+                bound = limit.max if limit.abs_max is None else limit.abs_max
+                assert own[quantity] == bound, (gate.name, limit.measure)
+                compared += 1
+    assert compared >= 4  # rebound, slide, incline, lift, sideways and creep are in both
