@@ -10,21 +10,28 @@ import pytest
 
 from cases import CATALOG, load_scene
 from comparators import COLUMNS, Trajectory
-from reports.cli import main
+from reports.cli import EXIT_BROKEN_PIPE, main
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
+def _command_env() -> dict:
+    """The environment that runs this checkout's sources, with no COLUMNS: output to a pipe."""
+    path = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
+    env = {**os.environ, "PYTHONPATH": path}
+    env.pop("COLUMNS", None)
+    return env
+
+
 def rigidbench(*args: str, cwd=None) -> subprocess.CompletedProcess:
     """The command as a user runs it, from this checkout's sources whatever `cwd` is."""
-    path = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
     return subprocess.run(
         [sys.executable, "-m", "reports.cli", *args],
         capture_output=True,
         text=True,
         timeout=600,
         cwd=cwd,
-        env={**os.environ, "PYTHONPATH": path},
+        env=_command_env(),
     )
 
 
@@ -33,6 +40,30 @@ def test_list_shows_every_case(capsys):
     out = capsys.readouterr().out
     for name in CATALOG:
         assert name in out
+
+
+def test_a_table_sent_to_a_file_keeps_each_cell_on_its_line():
+    """Piped or logged, a table is not folded to 80 columns: a row stays one line to grep."""
+    proc = rigidbench("list")
+    assert proc.returncode == 0, proc.stderr
+    row = next(line for line in proc.stdout.splitlines() if "seed_cube" in line)
+    assert CATALOG["seed_cube"].modelled() in row
+
+
+def test_a_reader_that_leaves_ends_the_command_without_a_traceback():
+    """`rigidbench list | head`: the pipe closed before the command writes stops it with the
+    status a shell gives a command SIGPIPE stops, and nothing on stderr."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "reports.cli", "list"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=_command_env(),
+        text=True,
+    )
+    proc.stdout.close()  # before the interpreter has started: the first write finds no reader
+    said = proc.stderr.read()
+    assert proc.wait(timeout=600) == EXIT_BROKEN_PIPE, said
+    assert said == ""
 
 
 @pytest.mark.parametrize("case", sorted(CATALOG))
