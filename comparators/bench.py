@@ -22,13 +22,14 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
 
 from cases.errors import InputError
 from cases.scene import Scene
 from comparators.engine import ENGINES, get_engine, unsupported
 from comparators.engine_output import message_count
 from comparators.limits import STEPS_ENV, check_run, current_limits
+from comparators.progress import Bar
 from comparators.timing import BENCH_REPEATS, MIN_REPEATS, attempt_run, interleaved, spread
 from comparators.verdict import verdict
 
@@ -178,7 +179,7 @@ def bench(
         MofNCompleteColumn(),
         TimeElapsedColumn(),
     ]
-    with Progress(*columns, console=console, disable=not progress, transient=False) as bar:
+    with Bar(*columns, console=console, disable=not progress, transient=False) as bar:
         task = bar.add_task("bench", total=total)
 
         def advance(label: str) -> None:

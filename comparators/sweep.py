@@ -27,7 +27,6 @@ from rich.console import Console
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
-    Progress,
     TextColumn,
     TimeElapsedColumn,
     TimeRemainingColumn,
@@ -43,6 +42,7 @@ from comparators.interrupt import worker_pool
 from comparators.limits import check_run
 from comparators.metrics import pose_errors_between
 from comparators.outcomes import OUTCOME_COLUMNS, outcomes
+from comparators.progress import Bar
 from comparators.summary import summarize
 from comparators.timing import SWEEP_REPEATS, attempt_run, repeat_run, spread
 from comparators.trajectory import Trajectory, package_versions
@@ -342,7 +342,7 @@ def run_sweep(
         TimeRemainingColumn(),
     ]
     show = progress and bool(todo)
-    with Progress(*columns, console=console, disable=not show, transient=False) as bar:
+    with Bar(*columns, console=console, disable=not show, transient=False) as bar:
         task = bar.add_task(f"{len(todo)} runs ({len(specs) - len(todo)} cached)", total=len(todo))
         for spec, (traj, error, analysis) in executor.map_unordered(execute, todo):
             if traj is None:

@@ -42,6 +42,7 @@ from comparators.engine_output import terminal_stream
 from comparators.interrupt import EXIT_INTERRUPTED, catching_interrupts, check, in_child
 from comparators.limits import check_run, limits_set
 from comparators.parity import ParityError
+from comparators.progress import Bar, stage
 from comparators.summary import summarize
 from comparators.trajectory import atomic_path
 from reports.arguments import build_parser, one_line
@@ -263,7 +264,7 @@ def _cached_run(scene, engine: str, integrator: str, dt: float, duration: float,
 
 
 def _cmd_animate(args, console: Console) -> None:
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
 
     from comparators.cache import ResultsCache
     from reports.animation import animate
@@ -288,7 +289,7 @@ def _cmd_animate(args, console: Console) -> None:
         if isinstance(traj, str):
             console.print(f"{label} failed: {traj}", markup=False)
     columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn()]
-    with Progress(*columns, TimeElapsedColumn(), console=console) as bar:
+    with Bar(*columns, TimeElapsedColumn(), console=console) as bar:
         task = bar.add_task(f"drawing {scene.name}", total=None)
 
         def drawn(done: int, total: int) -> None:
@@ -315,7 +316,7 @@ def _cmd_bench(args, console: Console) -> None:
     plan_bench(scenes, engines, args.dt, args.duration, args.repeats)  # bad dt, duration, repeats
     _print_left_out(console, scenes, engines)
     start = time.perf_counter()
-    with console.status("compiling the reference simulator", spinner="dots"):
+    with stage(console, "compiling the reference simulator"):
         warm_up(engines)
     table = in_child(bench, scenes, engines, args.dt, args.duration, args.repeats, console=console)
     console.print(_throughput_console_table(table, "stepping throughput (steps/s, stepping only)"))
@@ -351,7 +352,7 @@ def _measure_scaling(args, engines: list[str], console: Console):
     counts = scaling.QUICK_COUNTS if args.quick else scaling.FULL_COUNTS
     windows = scaling.QUICK_WINDOWS if args.quick else scaling.FULL_WINDOWS
     started = time.perf_counter()
-    with console.status("scaling", spinner="dots") as status:
+    with stage(console, "scaling") as status:
         table = scaling.measure_scaling(
             counts, engines, windows, progress=lambda label: status.update(f"scaling: {label}")
         )
@@ -379,7 +380,7 @@ def _cmd_report(args, console: Console) -> None:
     cache_dir = output_dir(args.cache, "--cache") if args.cache is not None else out / "cache"
     specs = plan(scenes, engines, quick=args.quick)  # a run over the limits: before compiling
     cache = ResultsCache(cache_dir)
-    with console.status("compiling the reference simulator", spinner="dots"):
+    with stage(console, "compiling the reference simulator"):
         warm_up(engines)
     lines = _print_left_out(console, scenes, engines)
     result = run_sweep(specs, cache, executor, left_out=lines, console=console)

@@ -151,7 +151,8 @@ def test_a_report_is_quiet_and_writes_only_its_folder(tmp_path):
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr == ""
-    *progress, closing = proc.stdout.strip().splitlines()
+    stage, *progress, closing = proc.stdout.strip().splitlines()
+    assert stage == "compiling the reference simulator"  # piped: the stage's name, no spinner
     assert closing.startswith("report: rigidbench-report/ (open rigidbench-report/index.html); ")
     assert all("━" in line for line in progress), proc.stdout  # the bar's lines, nothing else
     for text in ("QACC", "WARNING", "warning", "unstable", "wrote"):

@@ -1,0 +1,47 @@
+"""How long commands show their progress: the bar of counted work (the sweep, the bench, an
+animation's drawing) and the spinner of a stage that has no count."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from rich.console import Console
+from rich.progress import Progress
+from rich.status import Status
+
+# Lines a task prints where no terminal shows the bar: one each tenth of the way.
+LOGGED_STEPS = 10
+
+
+class Bar(Progress):
+    """rich's progress bar. Where its console is no terminal (a file, a CI log), rich draws the
+    bar only when it stops; this one also prints the bar's line each tenth of the way, so that
+    a log shows long work moving."""
+
+    def __init__(self, *columns, **kwargs):
+        super().__init__(*columns, **kwargs)
+        self._logged: dict = {}  # task id: the last tenth printed
+
+    def update(self, task_id, **kwargs) -> None:
+        super().update(task_id, **kwargs)
+        if self.disable or self.console.is_terminal:
+            return
+        task = next(t for t in self.tasks if t.id == task_id)
+        if not task.total or task.finished:  # no total to divide, or rich's last line is due
+            return
+        step = int(LOGGED_STEPS * task.completed / task.total)
+        if step > self._logged.get(task_id, 0):
+            self._logged[task_id] = step
+            self.console.print(self.make_tasks_table([task]))
+
+
+@contextmanager
+def stage(console: Console, text: str) -> Iterator[Status]:
+    """A spinner saying `text` on a terminal, for a long stage without steps to count (the
+    compile, the scaling measurement); in a file or a log, where rich shows no spinner, `text`
+    once as the stage starts."""
+    if not console.is_terminal:
+        console.print(text, markup=False)
+    with console.status(text, spinner="dots") as status:
+        yield status

@@ -1,0 +1,36 @@
+"""The progress bar in a log: a line each tenth of the way, where rich alone shows only the end."""
+
+import io
+
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, TextColumn
+
+from comparators.progress import Bar
+
+COLUMNS = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn())
+
+
+def _logged(total: int, disable: bool = False) -> list[str]:
+    out = io.StringIO()  # no terminal, as a file or a CI log
+    with Bar(*COLUMNS, console=Console(file=out, width=100), disable=disable) as bar:
+        task = bar.add_task("work", total=total)
+        for _ in range(total):
+            bar.update(task, advance=1)
+    return out.getvalue().splitlines()
+
+
+def test_a_log_shows_the_bar_each_tenth_of_the_way_and_at_the_end():
+    lines = _logged(25)
+    # tenths crossed at 2.5, 5, 7.5, ... runs; the last line is rich's own, at the end
+    assert [line.split()[-1] for line in lines] == [
+        f"{n}/25" for n in (3, 5, 8, 10, 13, 15, 18, 20, 23, 25)
+    ]
+    assert all(line.startswith("work") and "━" in line for line in lines)
+
+
+def test_a_short_task_prints_no_more_lines_than_it_has_steps():
+    assert [line.split()[-1] for line in _logged(3)] == ["1/3", "2/3", "3/3"]
+
+
+def test_a_disabled_bar_prints_nothing():
+    assert _logged(25, disable=True) == []
