@@ -157,11 +157,15 @@ def worker_pool(jobs: int, initializer=None, initargs=()):
 
 
 def stop_pool(pool: ProcessPoolExecutor) -> None:
-    """Cancel `pool`'s queued work and end its workers now (`stop_processes`)."""
+    """End `pool`'s workers now and cancel its queued work (`stop_processes`). SIGTERM goes
+    first, so that each worker has silenced its stderr (`_leave`) before the shutdown closes
+    the queues it may be reading: an interrupted report's worker has printed an EOFError
+    traceback from its call queue (docs/measurement.md, "Interrupts")."""
     processes = list((pool._processes or {}).values())  # no public accessor for the workers
     manager = pool._executor_manager_thread
+    _terminate(processes)
     pool.shutdown(wait=False, cancel_futures=True)
-    stop_processes(processes)
+    _reap(processes)
     if manager is not None:
         # Python 3.11's exit hook wakes every pool's manager thread it knows, also one that has
         # closed its wake-up pipe after its workers died: "Bad file descriptor" at exit. Wait
@@ -174,9 +178,18 @@ def stop_pool(pool: ProcessPoolExecutor) -> None:
 def stop_processes(processes) -> None:
     """SIGTERM each of `processes`, SIGKILL those still alive after `TERM_GRACE_S`; returns when
     every one has been reaped."""
+    _terminate(processes)
+    _reap(processes)
+
+
+def _terminate(processes) -> None:
     for process in processes:
         if process.is_alive():
             process.terminate()
+
+
+def _reap(processes) -> None:
+    """SIGKILL those of `processes` (SIGTERM sent) still alive after `TERM_GRACE_S`; reap all."""
     deadline = time.monotonic() + TERM_GRACE_S
     for process in processes:
         process.join(max(0.0, deadline - time.monotonic()))
