@@ -183,6 +183,7 @@ def stop_processes(processes) -> None:
 
 
 def _terminate(processes) -> None:
+    """SIGTERM each of `processes` still alive (`_leave` unwinds it)."""
     for process in processes:
         if process.is_alive():
             process.terminate()
