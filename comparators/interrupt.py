@@ -159,8 +159,8 @@ def worker_pool(jobs: int, initializer=None, initargs=()):
 def stop_pool(pool: ProcessPoolExecutor) -> None:
     """End `pool`'s workers now and cancel its queued work (`stop_processes`). SIGTERM goes
     first, so that each worker has silenced its stderr (`_leave`) before the shutdown closes
-    the queues it may be reading: an interrupted report's worker has printed an EOFError
-    traceback from its call queue (docs/measurement.md, "Interrupts")."""
+    the queues it may be reading. A worker still prints an EOFError traceback from its call
+    queue now and then (docs/measurement.md, "Interrupts")."""
     processes = list((pool._processes or {}).values())  # no public accessor for the workers
     manager = pool._executor_manager_thread
     _terminate(processes)
