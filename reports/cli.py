@@ -14,9 +14,7 @@ the terminal and out of the run's record.
 
 from __future__ import annotations
 
-import errno
 import math
-import os
 import sys
 import time
 import warnings
@@ -47,14 +45,12 @@ from comparators.summary import summarize
 from comparators.trajectory import atomic_path
 from reports.arguments import build_parser, one_line
 from reports.outputs import output_dir, output_file
+from reports.terminal import console_on, to_nowhere
 
 EXIT_BAD_INPUT = 2
 # The reader of the output left (`rigidbench bench | head`): the status a shell gives a command
 # that SIGPIPE stops (128 + 13).
 EXIT_BROKEN_PIPE = 141
-# Columns for output that goes to a file or a log, which has no width of its own: rich's 80
-# would fold the tables' cells there (`cube_rain_8` over two lines). COLUMNS, if set, rules.
-PIPED_WIDTH = 200
 # an engine's model or table is not the scene's, or it raised on a scene the suite accepted:
 # the engine's or its adapter's fault, not the input's
 EXIT_PARITY = 3
@@ -544,31 +540,10 @@ def _one_line_cache_warnings(shown):
     return show
 
 
-class _Console(Console):
-    """rich's console, except that a reader leaving (`| head`) raises BrokenPipeError to
-    `main`, where rich would exit on its own with status 1."""
-
-    def on_broken_pipe(self) -> None:
-        raise BrokenPipeError(errno.EPIPE, "the reader of the output closed it")
-
-
-def _to_nowhere(*streams) -> None:
-    """Point the streams' file descriptors at /dev/null: what is still buffered for a reader
-    that left is then dropped on close, not raised again."""
-    nowhere = os.open(os.devnull, os.O_WRONLY)
-    for stream in streams:
-        try:
-            os.dup2(nowhere, stream.fileno())
-        except (AttributeError, OSError, ValueError):  # a test's capture has no descriptor
-            pass
-    os.close(nowhere)
-
-
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     terminal = terminal_stream()
-    piped = not terminal.isatty() and "COLUMNS" not in os.environ
-    console = _Console(file=terminal, width=PIPED_WIDTH if piped else None)
+    console = console_on(terminal)
     try:
         limits = (getattr(args, "max_steps", None), getattr(args, "max_recorded", None))
         with warnings.catch_warnings(), catching_interrupts(), limits_set(*limits):
@@ -594,7 +569,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_INTERRUPTED
     except BrokenPipeError:
         # files are written through `atomic_path` and pools stop on the way out, as above
-        _to_nowhere(terminal, sys.stdout)
+        to_nowhere(terminal, sys.stdout)
         return EXIT_BROKEN_PIPE
     finally:
         if terminal is not sys.stdout:
