@@ -106,6 +106,7 @@ NEW_CASES = {
         "bounce_e0.3",
         "bounce_e0.8",
         "slide",
+        "slide_oblique",
         "incline",
         "incline_stick",
     ],
@@ -196,6 +197,7 @@ def test_flat_plate_is_planar():
     [
         ("resting_cube", 0.0),
         ("slide", 0.0),
+        ("slide_oblique", 0.0),
         ("incline", 0.0),
         ("incline_stick", 0.0),
         ("cube_stack", 0.0),
@@ -282,11 +284,16 @@ def test_bounce_expectations(case, e):
     assert scene.duration >= max(3.0, rest_time + REST_WINDOW)
 
 
-def test_slide_expectations():
-    scene = CATALOG["slide"]
+@pytest.mark.parametrize(("case", "degrees"), [("slide", 0.0), ("slide_oblique", 30.0)])
+def test_slide_expectations(case, degrees):
+    scene = CATALOG[case]
     body = scene.bodies[0]
-    (v0, vy, vz), mu = body.velocity, scene.contact.friction
-    assert (v0, vy, vz, mu, scene.contact.restitution) == (3.0, 0, 0, 0.5, 0.0)
+    v, mu = np.asarray(body.velocity), scene.contact.friction
+    v0 = np.linalg.norm(v)
+    assert (v0, v[2], mu, scene.contact.restitution) == pytest.approx((3.0, 0, 0.5, 0.0))
+    # launched `degrees` off the x axis, which the cube's faces are aligned with
+    assert np.degrees(np.arctan2(v[1], v[0])) == pytest.approx(degrees, rel=CLOSED_FORM_RTOL)
+    assert np.ptp(body.positions[:, 0]) == pytest.approx(np.ptp(body.positions[:, 1]))
     assert body.angular_velocity == (0, 0, 0)
     # uniform deceleration mu g: v0 = mu g t, d = v0 t / 2
     t_stop = v0 / (mu * G)
