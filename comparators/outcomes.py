@@ -241,35 +241,11 @@ def lift(run: RunData, body_index: int) -> float:
     return float(max(known.max(), 0.0)) if len(known) else np.nan
 
 
-def sideways(run: RunData, body_index: int) -> float:
-    """The furthest (m) a body's COM strays, within the plane it starts on, from the straight
-    line the stopping and slope closed forms have it slide along: downhill on a slope, along
-    its starting velocity on a level plane (a body starting still there should stay put). NaN:
-    no such plane, or the line is not straight (a slope crossed by a starting velocity)."""
-    scene = run.scene
-    body = scene.bodies[body_index]
-    plane = plane_under(scene, body)
-    if plane is None:
-        return np.nan
-    start = _in_plane(body.velocity, plane)
-    line = _downhill(scene, plane)
-    if line is None:
-        speed = np.linalg.norm(start)
-        line = start / speed if speed > 0 else np.zeros(3)
-    if np.linalg.norm(_without(start, line)) > DIRECTION_RTOL * np.linalg.norm(start):
-        return np.nan
-    x = run.arrays(body_index)["x"]
-    off = np.linalg.norm(_without(_in_plane(x - x[0], plane), line), axis=1)
-    known = off[np.isfinite(off)]
-    return float(known.max()) if len(known) else np.nan
-
-
-def _path_rows(run: RunData) -> list[tuple]:
-    """Per body, its `lift` off its plane and how far it strays `sideways`, both against 0,
-    where the scene states a stopping or slope closed form: both assume the body slides on its
-    plane along a straight line."""
-    scene, expected = run.scene, run.scene.expected
-    stated = expected is not None and any(
+def _states_a_slide(scene: Scene) -> bool:
+    """Whether the scene states a stopping or slope closed form: both have its bodies slide on
+    their plane along a straight line."""
+    expected = scene.expected
+    return expected is not None and any(
         value is not None
         for value in (
             expected.stopping_distance,
@@ -277,7 +253,62 @@ def _path_rows(run: RunData) -> list[tuple]:
             expected.slope_acceleration,
         )
     )
-    if not stated:
+
+
+def _line(scene: Scene, body: Body) -> tuple[Plane, np.ndarray] | None:
+    """(plane, unit direction) of the straight line the stopping and slope closed forms have
+    `body` slide along within the plane it starts on: downhill on a slope, along its starting
+    velocity on a level plane (the zero vector for a body starting still there: it should stay
+    put). None: no such plane, or the line is not straight (a slope crossed by a starting
+    velocity)."""
+    plane = plane_under(scene, body)
+    if plane is None:
+        return None
+    start = _in_plane(body.velocity, plane)
+    line = _downhill(scene, plane)
+    if line is None:
+        speed = np.linalg.norm(start)
+        line = start / speed if speed > 0 else np.zeros(3)
+    if np.linalg.norm(_without(start, line)) > DIRECTION_RTOL * np.linalg.norm(start):
+        return None
+    return plane, line
+
+
+def sideways(run: RunData, body_index: int) -> float:
+    """The furthest (m) a body's COM strays, within the plane it starts on, from the straight
+    line the stopping and slope closed forms have it slide along (`_line`). NaN: no such line."""
+    found = _line(run.scene, run.scene.bodies[body_index])
+    if found is None:
+        return np.nan
+    plane, line = found
+    x = run.arrays(body_index)["x"]
+    off = np.linalg.norm(_without(_in_plane(x - x[0], plane), line), axis=1)
+    known = off[np.isfinite(off)]
+    return float(known.max()) if len(known) else np.nan
+
+
+def path_on_line(traj: Trajectory, scene: Scene, body_index: int = 0) -> pd.DataFrame | None:
+    """A sliding body's COM path in the plane it starts on, per sample: t (s), `along` the
+    closed forms' line (`_line`) and `across` it (m, signed: positive towards normal x line,
+    left of the line seen from above the plane). `sideways` is the largest |across|. None:
+    no stated slide (`_states_a_slide`), no line, or a body that starts still on a level plane
+    (no direction to be along)."""
+    found = _line(scene, scene.bodies[body_index]) if _states_a_slide(scene) else None
+    if found is None or not found[1].any():
+        return None
+    plane, line = found
+    a = RunData(traj, scene).arrays(body_index)
+    shift = _in_plane(a["x"] - a["x"][0], plane)
+    left = np.cross(plane.unit_normal, line)
+    return pd.DataFrame({"t": a["t"], "along": shift @ line, "across": shift @ left})
+
+
+def _path_rows(run: RunData) -> list[tuple]:
+    """Per body, its `lift` off its plane and how far it strays `sideways`, both against 0,
+    where the scene states a stopping or slope closed form: both assume the body slides on its
+    plane along a straight line."""
+    scene = run.scene
+    if not _states_a_slide(scene):
         return []
     rows = []
     for k, body in enumerate(scene.bodies):

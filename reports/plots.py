@@ -26,9 +26,11 @@ from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 from cases.scene import Scene
 from comparators.engine import ENGINES
 from comparators.metrics import conserved_quantities
+from comparators.outcomes import path_on_line
 from comparators.scaling import FASTEST, scaling_rows
 from comparators.trajectory import Trajectory, atomic_path
 from reports.convergence import ERROR_CEILING_DEG, ERROR_FLOOR_DEG, pareto_front
+from reports.findings import ABSOLUTE_TOLERANCES
 
 WIDTH_IN, DPI = 8.0, 100  # 800 px wide
 ENGINE_COLOURS = matplotlib.colormaps["tab10"].colors
@@ -152,6 +154,45 @@ def plot_drift(
         ax.grid(True, which="major", alpha=0.3)
     at = f"dt = {chosen['dt'].iloc[0]:g} s" if one_dt else f"dt closest to {scene.dt:g} s"
     ax_e.set_title(f"{scene.name}: energy and angular momentum drift, {at}", fontsize=10)
+    _legend_below(fig, ncols=4)
+    return _save(fig, path)
+
+
+def plot_path(
+    runs: pd.DataFrame, trajectories: dict[str, Trajectory], scene: Scene, path: Path
+) -> Path | None:
+    """Each sliding body's COM path on its plane (`comparators.outcomes.path_on_line`): along
+    the closed forms' straight line (m) against across it (mm, magnified), one line per
+    engine/integrator at the scene's default dt (or the closest swept), with the band the
+    findings allow across and, where the scene states one, the closed-form stopping distance.
+    None: no body with such a line, or no trajectory."""
+    chosen = closest_runs(runs, set(trajectories), scene.dt)
+    one_dt = chosen["dt"].nunique() == 1
+    lines = []  # (label, style, path)
+    for run in chosen.itertuples():
+        for k, body in enumerate(scene.bodies):
+            found = path_on_line(trajectories[run.key], scene, k)
+            if found is None:
+                continue
+            label = f"{run.engine} {run.integrator}" + ("" if one_dt else f" (dt {run.dt:g} s)")
+            label += f", {body.name}" if len(scene.bodies) > 1 else ""
+            style = run_style(run.engine, run.integrator) | {"markevery": 0.1, "markersize": 4}
+            lines.append((label, style, found))
+    if not lines:
+        return None
+    fig, (ax,) = _figure(4.5)
+    band = ABSOLUTE_TOLERANCES["sideways"] * 1e3  # mm
+    ax.axhspan(-band, band, color="0.9", label=f"within {band:g} mm of the line")
+    stop = scene.expected.stopping_distance if scene.expected is not None else None
+    if stop is not None:
+        ax.axvline(stop, color="0.3", linestyle=":", label=f"closed form: stops at {stop:g} m")
+    for label, style, found in lines:
+        ax.plot(found["along"], found["across"] * 1e3, label=label, **style)
+    ax.set_xlabel("along the line it should slide on (m)")
+    ax.set_ylabel("across it (mm; + to its left)")
+    ax.grid(True, which="major", alpha=0.3)
+    at = f"dt = {chosen['dt'].iloc[0]:g} s" if one_dt else f"dt closest to {scene.dt:g} s"
+    ax.set_title(f"{scene.name}: centre of mass on its plane, {at}", fontsize=10)
     _legend_below(fig, ncols=4)
     return _save(fig, path)
 

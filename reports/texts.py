@@ -150,6 +150,13 @@ DRIFT = (
     "case's default dt (or the closest swept); a bounded wobble is what a symplectic "
     "integrator gives, a steady climb is secular drift."
 )
+PATH = (
+    "How to read: the centre of mass within the plane the body slides on, along the straight "
+    "line the closed forms have it follow (m) and across it (mm, magnified); the shaded band is "
+    "the stray the findings allow. Isotropic Coulomb friction keeps a body on the line and, on "
+    "a level plane, stops it at the dotted closed form; a friction pyramid bends the path "
+    "where one of its two directions stops first."
+)
 CONVERGENCE = (
     "How to read: on log-log axes an error ~ dt^p is a straight line of slope p, the "
     "fitted order; fits use valid runs with errors between "

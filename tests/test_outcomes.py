@@ -16,7 +16,13 @@ from cases import CATALOG, Body, Contact, Expected, Scene
 from cases.builders import floor, seed_cube_particles
 from cases.exact import exact_states
 from comparators import RunMeta, Trajectory, run
-from comparators.outcomes import OUTCOME_COLUMNS, STAND_DISTANCE, bounces, outcomes
+from comparators.outcomes import (
+    OUTCOME_COLUMNS,
+    STAND_DISTANCE,
+    bounces,
+    outcomes,
+    path_on_line,
+)
 from comparators.run_data import RunData, particle_positions
 from comparators.verdict import (
     ENERGY_GROWTH_LIMIT,
@@ -324,16 +330,34 @@ def test_sideways_is_the_furthest_stray_from_the_line_of_the_starting_velocity(h
         + np.outer(drift, across)
         + np.outer(0.05 * (t > 0.2), [0.0, 0.0, 1.0])
     )
-    table = outcomes(trajectory(scene, t, x, np.zeros_like(x)), scene)
-    assert measured(table, "sideways") == pytest.approx(drift.max(), rel=EXACT_RTOL)
+    traj = trajectory(scene, t, x, np.zeros_like(x))
+    assert measured(outcomes(traj, scene), "sideways") == pytest.approx(drift.max(), rel=EXACT_RTOL)
+    # the path the report draws: the same drift, signed (to the left of the line), and the
+    # distance along it
+    path = path_on_line(traj, scene)
+    np.testing.assert_allclose(path["across"], drift, atol=EXACT_ATOL)
+    np.testing.assert_allclose(path["along"], 3.0 * t, rtol=EXACT_RTOL, atol=EXACT_ATOL)
+    np.testing.assert_array_equal(path["t"], t)
 
 
 def test_a_body_starting_still_on_a_level_plane_strays_by_any_move_along_it():
     scene = floor_scene(Expected(stopping_distance=0.9), duration=1.0)  # it never starts
     t = np.arange(0.0, 1.0, SLIDE_SAMPLE)
     x = scene.bodies[0].com + np.outer(t, [0.003, 0.004, 0.1])  # 5 mm along the floor at t = 1
-    table = outcomes(trajectory(scene, t, x, np.zeros_like(x)), scene)
-    assert measured(table, "sideways") == pytest.approx(0.005 * t[-1], rel=EXACT_RTOL)
+    traj = trajectory(scene, t, x, np.zeros_like(x))
+    assert measured(outcomes(traj, scene), "sideways") == pytest.approx(
+        0.005 * t[-1], rel=EXACT_RTOL
+    )
+    assert path_on_line(traj, scene) is None  # no direction to draw it along
+
+
+def test_no_path_where_the_scene_states_no_slide():
+    """A cube pushed along the floor in a scene that states only its rest height: no closed form
+    has it slide on a line, so there is no line to measure a path against."""
+    scene = floor_scene(Expected(rest_com_height=REST), bodies=(cube(velocity=(3.0, 0, 0)),))
+    t = np.arange(0.0, 1.0, SLIDE_SAMPLE)
+    x = scene.bodies[0].com + np.outer(t, [3.0, 0.0, 0.0])
+    assert path_on_line(trajectory(scene, t, x, np.zeros_like(x)), scene) is None
 
 
 def incline_scene(degrees: float, acceleration: float) -> tuple[Scene, np.ndarray]:

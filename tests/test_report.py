@@ -20,6 +20,7 @@ from comparators.outcomes import outcomes
 from comparators.scaling import SCALING_COLUMNS
 from comparators.summary import summarize
 from comparators.sweep import OUTCOMES_COLUMNS, RESULT_COLUMNS, SweepResult
+from reports import texts
 from reports.convergence import (
     ERROR_CEILING_DEG,
     ERROR_FLOOR_DEG,
@@ -281,6 +282,18 @@ def test_report_files(sweep, report):
     assert sorted(figures) == sorted(expected)
     assert all((out / name).stat().st_size > 10_000 for name in figures)
     assert not [p.name for p in out.iterdir() if p.name.startswith(".")], "temporary files left"
+
+
+def test_a_sliding_case_gets_the_path_on_its_plane(tmp_path):
+    """A case that states a slide's closed form (`slide_oblique`) gets the path figure, in its
+    section with its how-to-read; tumbling_box above does not (`test_report_files`)."""
+    scene = CATALOG["slide_oblique"]
+    written = write_report(build_result([scene], PAIRS[:2], (scene.dt,)), tmp_path, "pytest")
+    assert (tmp_path / "figures" / "slide_oblique_path.png").stat().st_size > 10_000
+    text = written["report.md"].read_text()
+    section = text[text.index("### Path on its plane") :]
+    assert section.index(texts.PATH) < section.index("figures/slide_oblique_path.png")
+    assert "Metrics, drift, path on its plane, convergence in dt" in text
 
 
 def test_a_case_of_the_longest_name_allowed_gets_its_figures(tmp_path):

@@ -37,7 +37,14 @@ METRIC_HEADERS = {
     "verdict": "verdict",
 }
 # what a case's folded detail holds
-CASE_DETAIL = "Metrics, drift, convergence in dt, work-precision, stability map, outcomes"
+CASE_DETAIL = (
+    "Metrics",
+    "drift",
+    "convergence in dt",
+    "work-precision",
+    "stability map",
+    "outcomes",
+)
 # columns dropped when all NaN
 SHOWN_WHERE_MEASURED = (
     "rest_com_height",
@@ -198,6 +205,11 @@ def case_section(
     wp_alt = "orientation error against stepping time"
     work_precision = case_figure(figures, case, "work_precision", out, wp_alt)
     stability = case_figure(figures, case, "stability", out, "stability map")
+    # only a case with a sliding body's straight line has a path to draw
+    path = []
+    if (case, "path") in figures:
+        path_figure = case_figure(figures, case, "path", out, "path on its plane")
+        path = subsection("Path on its plane", texts.PATH, path_figure)
     fit_table = _fit_table(fits[fits["case"] == case])
     # the motion stays outside the fold: a reader sees each core case move without a click
     motion = []
@@ -208,9 +220,11 @@ def case_section(
     detail = [
         *subsection("Metrics", texts.METRICS + solver, _metrics_table(runs)),
         *subsection("Drift over time", texts.DRIFT, drift),
+        *path,
         *subsection("Convergence in dt", texts.CONVERGENCE + contact, errors, fit_table),
         *subsection("Work-precision", texts.WORK_PRECISION, work_precision, pareto_sentence(runs)),
         *subsection("Stability map", texts.STABILITY_MAP, stability),
         *case_outcomes(result, case),
     ]
-    return [*_intro(result, case), *motion, *folded(CASE_DETAIL, detail)]
+    named = (*CASE_DETAIL[:2], *(("path on its plane",) if path else ()), *CASE_DETAIL[2:])
+    return [*_intro(result, case), *motion, *folded(", ".join(named), detail)]
