@@ -361,20 +361,22 @@ register(partial(bounce, "bounce_e0.3", 0.3))
 register(partial(bounce, "bounce_e0.8", 0.8))
 
 
-def slide(name: str, degrees: float) -> Scene:
-    """The seed's cube launched along the floor at `degrees` off its faces (and the world's x
-    axis). Isotropic Coulomb friction stops it on its starting line whatever the direction: all
-    four corners slide alike, so friction's moment about the vertical cancels (the load moves
-    to the leading corners along the velocity). A friction pyramid, each tangent direction
-    bounded by mu N apart, does not: off its axes it stops short and off the line."""
+def slide(name: str, what: str, body: Body, degrees: float) -> Scene:
+    """`what` (`body`, as high as the seed's cube and standing on a face on the floor) launched
+    along it at 3 m/s, `degrees` off the world's x axis. Isotropic Coulomb friction stops it on
+    its starting line in any direction: every corner slides alike, so friction's moment about
+    the vertical through the COM cancels (the load shifts to the leading corners along the
+    velocity, by mu times the COM's height). A friction pyramid, each tangent direction bounded
+    by mu N apart, stops it short and off the line; an engine that couples the two directions
+    through the body's inertia turns it."""
     v0, mu = 3.0, 0.5
     heading = math.radians(degrees)
-    velocity = (v0 * math.cos(heading), v0 * math.sin(heading), 0.0)
-    towards = f", {degrees:g} degrees off its faces," if degrees else ""
+    body = dataclasses.replace(body, velocity=(v0 * math.cos(heading), v0 * math.sin(heading), 0.0))
+    towards = f", {degrees:g} degrees off the x axis," if degrees else ""
     return Scene(
         name=name,
-        description=f"The seed's cube launched along the floor at {v0:g} m/s{towards} with "
-        f"mu = {mu:g}: stops after v0^2 / (2 mu g) in v0 / (mu g)"
+        description=f"{what} launched along the floor at {v0:g} m/s{towards} with mu = "
+        f"{mu:g}: stops after v0^2 / (2 mu g) in v0 / (mu g)"
         + (", on its starting line." if degrees else "."),
         tags=("hard", "contact-closed-form", "gravity", "contact", "rest"),
         duration=2.0,
@@ -383,7 +385,7 @@ def slide(name: str, degrees: float) -> Scene:
         gravity=GRAVITY,
         contact=Contact(restitution=0.0, friction=mu),
         planes=(builders.floor(),),
-        bodies=(_cube(builders.cube_above_floor(), velocity=velocity),),
+        bodies=(body,),
         expected=Expected(
             stopping_distance=v0**2 / (2 * mu * G),
             stopping_time=v0 / (mu * G),
@@ -392,10 +394,23 @@ def slide(name: str, degrees: float) -> Scene:
     )
 
 
-register(partial(slide, "slide", 0.0))
-# 30 degrees: a pyramid's two bounds then stop the two components at different times, so both
-# its distance and its line are off (at 45 degrees only the distance is).
-register(partial(slide, "slide_oblique", 30.0))
+register(partial(slide, "slide", "The seed's cube", _cube(builders.cube_above_floor()), 0.0))
+# The oblique slide: a box whose footprint and inertia differ along its axes (2 x 1 x 1 m, its
+# long axis on x, as high as the seed's cube), launched 30 degrees off both. Off the world's axes
+# a pyramid's two bounds stop the two velocity components at different times (at 45 degrees
+# only the distance would be off); off the box's axes its inertia couples the directions.
+OBLIQUE_BOX = (2.0, 1.0, 1.0)  # m, between corner particles' centres
+register(
+    partial(
+        slide,
+        "slide_oblique",
+        "A 2 x 1 x 1 box of 8 corner particles, long axis on x,",
+        _cube(
+            builders.box_corners(OBLIQUE_BOX, (0.0, 0.0, RADIUS + OBLIQUE_BOX[2] / 2)), name="box"
+        ),
+        30.0,
+    )
+)
 
 
 def incline(name: str, degrees: float) -> Scene:

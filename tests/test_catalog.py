@@ -284,16 +284,20 @@ def test_bounce_expectations(case, e):
     assert scene.duration >= max(3.0, rest_time + REST_WINDOW)
 
 
-@pytest.mark.parametrize(("case", "degrees"), [("slide", 0.0), ("slide_oblique", 30.0)])
-def test_slide_expectations(case, degrees):
+@pytest.mark.parametrize(
+    ("case", "degrees", "footprint"), [("slide", 0.0, (1, 1)), ("slide_oblique", 30.0, (2, 1))]
+)
+def test_slide_expectations(case, degrees, footprint):
     scene = CATALOG[case]
     body = scene.bodies[0]
     v, mu = np.asarray(body.velocity), scene.contact.friction
     v0 = np.linalg.norm(v)
     assert (v0, v[2], mu, scene.contact.restitution) == pytest.approx((3.0, 0, 0.5, 0.0))
-    # launched `degrees` off the x axis, which the cube's faces are aligned with
+    # launched `degrees` off the x axis, which the body's faces are aligned with: on the oblique
+    # box also off its long axis, and so off its principal axes
     assert np.degrees(np.arctan2(v[1], v[0])) == pytest.approx(degrees, rel=CLOSED_FORM_RTOL)
-    assert np.ptp(body.positions[:, 0]) == pytest.approx(np.ptp(body.positions[:, 1]))
+    spans = np.ptp(body.positions, axis=0)
+    assert spans == pytest.approx([*footprint, 1.0])  # as high as the seed's cube
     assert body.angular_velocity == (0, 0, 0)
     # uniform deceleration mu g: v0 = mu g t, d = v0 t / 2
     t_stop = v0 / (mu * G)
