@@ -1,12 +1,18 @@
 """The bodies as contact sees them at a step's start: rotation matrices, world inverse inertias
 and angular velocities, particle positions, and how far each body can move in the step; and
-the angular momenta a solve's new angular velocities give."""
+the angular momenta a solve's new angular velocities give, without subnormal remainders."""
 
 import math
+
+import numpy as np
 
 from reference_sim.jit import inlined_kernel, kernel
 from reference_sim.quaternion import qmatrix
 from reference_sim.vec3 import add, conjugate_by, dot, flat, mat, mat_t_vec, mat_vec, row, vec
+
+# The smallest normal double (2.2e-308): below it a float is subnormal, and every operation on
+# one costs about a hundred cycles on x86. No physical speed or momentum is that small.
+NORMAL_MIN = np.finfo(np.float64).tiny
 
 
 @kernel
@@ -42,6 +48,19 @@ def angular_momenta(model, L, rot, inv, omega):
             dl = mat_vec(r, mat_vec(mat(model.inertia0, b), mat_t_vec(r, dw)))
             for i in range(3):
                 L[b, i] += dl[i]
+
+
+@inlined_kernel
+def flush_subnormal(v, L):
+    """Set each body's velocity and angular momentum components below NORMAL_MIN to zero. A
+    solve can leave a body at rest with a subnormal remainder that stays for good, every step's
+    arithmetic on it slowed (docs/contact-solver.md, "Subnormal remainders")."""
+    for b in range(v.shape[0]):
+        for i in range(3):
+            if abs(v[b, i]) < NORMAL_MIN:
+                v[b, i] = 0.0
+            if abs(L[b, i]) < NORMAL_MIN:
+                L[b, i] = 0.0
 
 
 @kernel

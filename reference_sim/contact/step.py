@@ -13,7 +13,12 @@ from reference_sim.contact.buffers import (
     STAT_SWEEPS,
     STAT_UNCONVERGED,
 )
-from reference_sim.contact.frames import angular_momenta, frames_into, reach_into
+from reference_sim.contact.frames import (
+    angular_momenta,
+    flush_subnormal,
+    frames_into,
+    reach_into,
+)
 from reference_sim.contact.gauss_seidel import iterate, iterate_pile, sticking
 from reference_sim.contact.impulses import row_speed, set_impulses
 from reference_sim.contact.rows import assemble
@@ -62,7 +67,8 @@ def solve(model, x, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm, slot):
     PRE_DRIFT or POST_DRIFT (its trusted extrapolation rate, `iterate`). A warm-started solve
     of at most RESTART_MAX_BODIES bodies not converged in RESTART_SWEEPS sweeps starts again
     from no impulse, once, within MAX_ITERATIONS in all. The sweeps change v and `buf.omega`;
-    L follows once at the end (`angular_momenta`). Counts the solve in `buf.solver`."""
+    L follows once at the end (`angular_momenta`), and subnormal remainders of both are flushed
+    to zero (`flush_subnormal`). Counts the solve in `buf.solver`."""
     tolerance = solver_tolerance(dt)
     warm = warm_start(model, x, nc, buf, v, warm_keys, warm_lam, n_warm, tolerance)
     first = SUBSPACE_FIRST_WARM if warm > 0 else SUBSPACE_FIRST
@@ -89,6 +95,7 @@ def solve(model, x, v, L, nc, dt, buf, warm_keys, warm_lam, n_warm, slot):
             if buf.active[k]:
                 set_impulses(model, buf, k, 0.0, 0.0, 0.0, v)
     angular_momenta(model, L, buf.rot, buf.inv, buf.omega)
+    flush_subnormal(v, L)
     buf.solver[STAT_SOLVES] += 1
     buf.solver[STAT_SWEEPS] += sweeps
     buf.solver[STAT_UNCONVERGED] += not converged
