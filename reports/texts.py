@@ -155,7 +155,8 @@ PATH = (
     "line the closed forms have it follow (m) and across it (mm, magnified); the shaded band is "
     "the stray the findings allow. Isotropic Coulomb friction keeps a body on the line and, on "
     "a level plane, stops it at the dotted closed form; a friction pyramid bends the path "
-    "where one of its two directions stops first."
+    "where one of its two directions stops first, and friction turned off the slip by the "
+    "body's inertia curves it."
 )
 CONVERGENCE = (
     "How to read: on log-log axes an error ~ dt^p is a straight line of slope p, the "
