@@ -17,11 +17,25 @@ LOGGED_STEPS = 10
 class Bar(Progress):
     """rich's progress bar. Where its console is no terminal (a file, a CI log), rich draws the
     bar only when it stops; this one also prints the bar's line each tenth of the way, so that
-    a log shows long work moving."""
+    a log shows long work moving, with the task's description last: descriptions differ in
+    width, and the bars and counts before them then line up from line to line."""
 
     def __init__(self, *columns, **kwargs):
         super().__init__(*columns, **kwargs)
         self._logged: dict = {}  # task id: the last tenth printed
+
+    def make_tasks_table(self, tasks):
+        # rich lays out the table once while it builds its console (`live`), before there is
+        # a console to ask
+        if not hasattr(self, "live") or self.console.is_terminal:
+            return super().make_tasks_table(tasks)
+        columns = self.columns
+        described = [c for c in columns if "task.description" in getattr(c, "text_format", "")]
+        self.columns = tuple(c for c in columns if c not in described) + tuple(described)
+        try:
+            return super().make_tasks_table(tasks)
+        finally:
+            self.columns = columns
 
     def update(self, task_id, **kwargs) -> None:
         super().update(task_id, **kwargs)
