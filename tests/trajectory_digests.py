@@ -30,6 +30,7 @@ CONTACT_CASES = (
     "bounce_e0.3",
     "bounce_e0.8",
     "slide",
+    "slide_oblique",
     "incline",
     "incline_stick",
 )
