@@ -413,6 +413,37 @@ register(
 )
 
 
+@register
+def spin_down() -> Scene:
+    """The seed's cube standing on the floor, spun about the vertical through its COM. Its four
+    bottom corners slide on one circle of radius r about that axis, each against its own motion:
+    friction mu N_i at each, tangential, so no net force and no tipping moment, and a torque
+    mu m g r however the load is shared between them (all four are at r). It turns at a uniform
+    deceleration a = mu m g r / I and stops after w0^2 / (2 a) in w0 / a."""
+    w0, mu = 5.0, 0.5
+    body = dataclasses.replace(_cube(builders.cube_above_floor()), angular_velocity=(0, 0, w0))
+    bottom = body.positions[body.positions[:, 2] == body.positions[:, 2].min()]
+    r = float(np.hypot(*(bottom - body.com)[:, :2].T).mean())  # the four's one radius
+    a = mu * body.mass * G * r / body.inertia[2, 2]
+    return Scene(
+        name="spin_down",
+        description=f"The seed's cube standing on the floor, spun at {w0:g} rad/s about the "
+        f"vertical, mu = {mu:g}: its corners' friction stops it after w0^2 / (2 a) in w0 / a, "
+        f"a = mu m g r / I = {a:.3g} rad/s^2.",
+        tags=("hard", "contact-closed-form", "gravity", "contact", "rest"),
+        duration=2.0,
+        dt=0.001,
+        sample_interval=0.001,
+        gravity=GRAVITY,
+        contact=Contact(restitution=0.0, friction=mu),
+        planes=(builders.floor(),),
+        bodies=(body,),
+        expected=Expected(
+            spin_angle=w0**2 / (2 * a), spin_time=w0 / a, rest_com_height=CUBE_REST_HEIGHT
+        ),
+    )
+
+
 def incline(name: str, degrees: float) -> Scene:
     theta, mu = math.radians(degrees), STICKY.friction
     slides = math.tan(theta) > mu

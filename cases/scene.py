@@ -182,6 +182,9 @@ class Expected:
         floor slides before friction stops it: v0^2 / (2 mu g) and v0 / (mu g).
       slope_acceleration: the COM's acceleration (m/s^2) down an incline: 0 when friction holds
         it (tan theta <= mu), else g (sin theta - mu cos theta).
+      spin_angle, spin_time: how far (rad) and how long (s) a body spun about the normal of the
+        plane it stands on turns before friction at its contacts stops it: w0^2 / (2 a) and
+        w0 / a, a = mu g m r / I for contacts at distance r from the spin axis.
     """
 
     rest_com_height: PositiveNum | None = None
@@ -190,6 +193,8 @@ class Expected:
     stopping_distance: PositiveNum | None = None
     stopping_time: PositiveNum | None = None
     slope_acceleration: Annotated[Num, Field(ge=0)] | None = None
+    spin_angle: PositiveNum | None = None
+    spin_time: PositiveNum | None = None
 
 
 @dataclass(frozen=True, config=_CONFIG)

@@ -40,6 +40,11 @@ listed here is an error. Positions are world coordinates at t = 0.
                                                                 incline: 0 when friction holds
                                                                 (tan theta <= mu), else
                                                                 g (sin theta - mu cos theta)
+  expected.spin_angle      number > 0, rad           absent     how far a body spun about the
+                                                                normal of its plane turns before
+                                                                friction stops it: w0^2 / (2 a),
+                                                                a = mu g m r / I
+  expected.spin_time       number > 0, s             absent     how long it spins: w0 / a
   [[planes]]               array of tables           []         static half-spaces; need [contact]
   planes.point             vector, m                 required   a point on the plane
   planes.normal            vector, non-zero          required   points into the free side; any

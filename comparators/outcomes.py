@@ -17,7 +17,7 @@ import pandas as pd
 
 from cases.exact import EQUAL_MOMENTS_RTOL, exact_states, exact_trajectory_available
 from cases.scene import Body, Plane, Scene
-from comparators.metrics import REST_SPEED, support_plane
+from comparators.metrics import REST_ANGULAR_SPEED, REST_SPEED, support_plane
 from comparators.run_data import (
     RunData,
     contact_planes,
@@ -43,6 +43,9 @@ CLEARANCE_ROUNDING = 1e-12
 # A sliding body has stopped once its COM speed stays below this (m/s): REST_SPEED again. A body
 # decelerating at mu g >= 1 m/s^2 covers 0.5 um after falling below it.
 STOP_SPEED = REST_SPEED
+# A spinning body has stopped once its angular speed about its plane's normal stays below this
+# (rad/s): REST_ANGULAR_SPEED again; decelerating at >= 1 rad/s^2 it turns 0.5 urad after.
+STOP_SPIN = REST_ANGULAR_SPEED
 # Slope acceleration is fitted after this fraction of the run: soft contacts (MuJoCo, PyBullet)
 # take a few steps to reach their steady penetration on a body placed on the plane.
 SLOPE_SETTLE_FRACTION = 0.1
@@ -141,27 +144,18 @@ def stopping(run: RunData, body_index: int) -> tuple[float, float]:
     """(distance (m), time (s)) from t = 0 until the COM speed stays below STOP_SPEED.
 
     The distance is the COM displacement along the support plane (all of it without one) at
-    the first sample of the stopped stretch. The time is refined between the last moving
-    sample and that one by continuing the last sampled deceleration to zero speed: exact for
-    uniform deceleration, otherwise within one sample interval. NaN, NaN: still moving at the end.
+    the first sample of the stopped stretch; the time is refined between samples (`_stop`).
+    NaN, NaN: still moving at the end.
     """
     a = run.arrays(body_index)
-    speed = np.linalg.norm(a["v"], axis=1)
-    moving = np.flatnonzero(speed >= STOP_SPEED)
-    if len(moving) and moving[-1] == len(speed) - 1:
+    s, stop = _stop(a["t"], np.linalg.norm(a["v"], axis=1) / STOP_SPEED)
+    if s < 0:
         return np.nan, np.nan
-    s = moving[-1] + 1 if len(moving) else 0
     shift = a["x"][s] - a["x"][0]
     plane = support_plane(run.scene)
     if plane is not None:
         shift = shift - np.dot(shift, plane.unit_normal) * plane.unit_normal
-    t = a["t"]
-    stop = t[s]
-    if s >= 2:
-        decel = (speed[s - 2] - speed[s - 1]) / (t[s - 1] - t[s - 2])
-        if decel > 0:
-            stop = min(t[s], t[s - 1] + speed[s - 1] / decel)
-    return float(np.linalg.norm(shift)), float(stop)
+    return float(np.linalg.norm(shift)), stop
 
 
 def _stopping_rows(run: RunData) -> list[tuple]:
@@ -183,6 +177,63 @@ def _stopping_rows(run: RunData) -> list[tuple]:
             )
         if expected.stopping_time is not None:
             rows.append((_label(scene, body, "stopping_time"), time, expected.stopping_time, "s"))
+    return rows
+
+
+def _stop(t: np.ndarray, speed: np.ndarray) -> tuple[int, float]:
+    """(first sample of the stretch where `speed` stays below its stop threshold, the stop's
+    time), `speed` already divided by that threshold: the time is refined between the last
+    moving sample and that one by continuing the last sampled deceleration to zero, exact for
+    uniform deceleration, otherwise within one sample interval. (-1, NaN): still moving."""
+    moving = np.flatnonzero(speed >= 1.0)
+    if len(moving) and moving[-1] == len(speed) - 1:
+        return -1, np.nan
+    s = moving[-1] + 1 if len(moving) else 0
+    stop = t[s]
+    if s >= 2:
+        decel = (speed[s - 2] - speed[s - 1]) / (t[s - 1] - t[s - 2])
+        if decel > 0:
+            stop = min(t[s], t[s - 1] + speed[s - 1] / decel)
+    return int(s), float(stop)
+
+
+def spin(run: RunData, body_index: int) -> tuple[float, float]:
+    """(angle (rad), time (s)) a body turns about the normal of the plane it starts on
+    (`plane_under`) from t = 0 until its angular speed about that normal stays below STOP_SPIN;
+    the time refined as `stopping`'s. The angle is the rotation about the normal since the
+    start, unwrapped sample to sample, at the first sample of the stopped stretch, its sign
+    that of the starting spin. NaN, NaN: no such plane, or still spinning at the end."""
+    scene = run.scene
+    body = scene.bodies[body_index]
+    plane = plane_under(scene, body)
+    if plane is None:
+        return np.nan, np.nan
+    n = plane.unit_normal
+    a = run.arrays(body_index)
+    s, stop = _stop(a["t"], np.abs(a["w"] @ n) / STOP_SPIN)
+    if s < 0:
+        return np.nan, np.nan
+    q = a["q"]  # (w, x, y, z): the turn since the start is q q0^-1, its angle about n
+    q0 = q[0] * np.array([1.0, -1.0, -1.0, -1.0])
+    w = q[:, 0] * q0[0] - q[:, 1:] @ q0[1:]
+    axis = q[:, 0, None] * q0[1:] + q0[0] * q[:, 1:] + np.cross(q[:, 1:], q0[1:])
+    turned = np.unwrap(2.0 * np.arctan2(axis @ n, w))
+    sign = 1.0 if np.dot(body.angular_velocity, n) >= 0 else -1.0
+    return float(sign * turned[s]), stop
+
+
+def _spin_rows(run: RunData) -> list[tuple]:
+    scene = run.scene
+    expected = scene.expected
+    if expected is None or (expected.spin_angle is None and expected.spin_time is None):
+        return []
+    rows = []
+    for k, body in enumerate(scene.bodies):
+        angle, time = spin(run, k)
+        if expected.spin_angle is not None:
+            rows.append((_label(scene, body, "spin_angle"), angle, expected.spin_angle, "rad"))
+        if expected.spin_time is not None:
+            rows.append((_label(scene, body, "spin_time"), time, expected.spin_time, "s"))
     return rows
 
 
@@ -536,6 +587,7 @@ MEASUREMENTS = (
     _rest_height_rows,
     _bounce_rows,
     _stopping_rows,
+    _spin_rows,
     _slope_rows,
     _path_rows,
     _rest_rows,

@@ -42,6 +42,7 @@ FLOORS = {
     # the floors the regression tables of tests/test_hard_cases.py held (2026-11-21)
     "rebound_ratio": 0.005,
     "stopping_distance": 1e-3,  # m
+    "spin_angle": 1e-3,  # rad: a millimetre at the seed's cube's corners
     "slope_acceleration": 1e-3,  # m/s^2
     "jitter_rms": 1e-9,  # m/s
     "angular_momentum_change": 1e-12,
@@ -50,6 +51,7 @@ FLOORS = {
     # tolerances the closed forms are checked to (1 %)
     "apex_height": 1e-3,  # m
     "stopping_time": 1e-3,  # s
+    "spin_time": 1e-3,  # s
     "flip_period": 1e-3,  # s
     # rest and sliding: a micrometre of height, lift, sideways stray or depth (soft contacts
     # settle 1e-5 m into the floor), a nanometre of creep or drift (rigid contacts stay put to

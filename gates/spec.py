@@ -80,6 +80,8 @@ OUTCOME_QUANTITIES = (
     "rebound_ratio",
     "stopping_distance",
     "stopping_time",
+    "spin_angle",
+    "spin_time",
     "slope_acceleration",
     "slides",
     "lift",

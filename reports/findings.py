@@ -22,16 +22,21 @@ VERDICT_PHRASES = {
     "jitter": "jitter (never came to rest)",
 }
 # Closed-form outcomes and how far a measurement may sit from its closed form before a reader is
-# told: the rebound ratio within 2 % of e, the stopping distance and the slope acceleration within
-# 1 % (the reference simulator's own gates, tests/test_hard_cases.py, which every rigid
-# integrator meets; a zero closed form, as a slope acceleration where the body sticks, is
-# judged by `slides` instead); a resting height within 1 mm and a sliding body's lift off its
+# told: the rebound ratio within 2 % of e, the stopping distance, the spin-down angle and the slope
+# acceleration within 1 % (the reference simulator's own gates, tests/test_hard_cases.py, which
+# every rigid integrator meets; a zero closed form, as a slope acceleration where the body sticks,
+# is judged by `slides` instead); a resting height within 1 mm and a sliding body's lift off its
 # plane below 1 mm (ten times the 1e-4 m by which soft contacts settle); a creep within 2 mm, the
 # resting gate's limit (gates/physics/resting.toml): a contact that acts on penetration lets the
-# body fall one step first, g dt^2 = 1 mm at resting_cube's dt, and a compliant one settles as
-# much again; its sideways stray from the closed forms' straight line below 1 mm (a tenth of the
-# 1 % the stopping distance is held to on `slide`'s 0.9 m); `slides` (1 or 0) must match.
-RELATIVE_TOLERANCES = {"rebound_ratio": 0.02, "stopping_distance": 0.01, "slope_acceleration": 0.01}
+# body fall one step first, g dt^2 = 1 mm at resting_cube's dt, and a compliant one settles as much
+# again; its sideways stray from the closed forms' straight line below 1 mm (a tenth of the 1 % the
+# stopping distance is held to on `slide`'s 0.9 m); `slides` (1 or 0) must match.
+RELATIVE_TOLERANCES = {
+    "rebound_ratio": 0.02,
+    "stopping_distance": 0.01,
+    "spin_angle": 0.01,
+    "slope_acceleration": 0.01,
+}
 ABSOLUTE_TOLERANCES = {
     "rest_com_height": 1e-3,
     "creep": 2e-3,
@@ -42,6 +47,7 @@ ABSOLUTE_TOLERANCES = {
 QUANTITY_NAMES = {
     "rebound_ratio": "rebound ratio",
     "stopping_distance": "stopping distance",
+    "spin_angle": "spin-down angle",
     "slope_acceleration": "slope acceleration",
     "rest_com_height": "rest height",
     "creep": "creep",

@@ -210,6 +210,8 @@ CONTACT_OUTCOMES = (
     "mean over the first bounces of the COM's normal rebound over approach speed, each carried "
     "ballistically to the floor; apex_height_k: clearance of the lowest particle surface at the "
     "k-th apex; stopping distance and time: until the COM speed stays below 1 mm/s; "
+    "spin_angle and spin_time: the turn about the plane's normal until the spin about it stays "
+    "below 1 mrad/s; "
     "slope_acceleration: least-squares fit of the downhill COM displacement, slides 1 or sticks "
     "0; lift: the highest a sliding body's lowest particle surface rose above the plane it "
     "starts on (0: it slides in contact throughout, as both closed forms assume); sideways: "

@@ -107,6 +107,7 @@ NEW_CASES = {
         "bounce_e0.8",
         "slide",
         "slide_oblique",
+        "spin_down",
         "incline",
         "incline_stick",
     ],
@@ -198,6 +199,7 @@ def test_flat_plate_is_planar():
         ("resting_cube", 0.0),
         ("slide", 0.0),
         ("slide_oblique", 0.0),
+        ("spin_down", 0.0),
         ("incline", 0.0),
         ("incline_stick", 0.0),
         ("cube_stack", 0.0),
@@ -305,6 +307,23 @@ def test_slide_expectations(case, degrees, footprint):
     assert scene.expected.stopping_distance == pytest.approx(v0 * t_stop / 2, rel=CLOSED_FORM_RTOL)
     assert scene.expected.rest_com_height == CUBE_REST_HEIGHT
     assert scene.duration > t_stop + REST_WINDOW
+
+
+def test_spin_down_expectations():
+    """The seed's cube (8 unit masses at the corners of a unit cube) spun at 5 rad/s: I_zz is
+    8 x 0.5 kg m^2, its bottom corners are sqrt(0.5) m off the axis, and friction's torque
+    mu m g r decelerates it uniformly."""
+    scene = CATALOG["spin_down"]
+    body = scene.bodies[0]
+    assert body.angular_velocity == (0, 0, 5.0) and body.velocity == (0, 0, 0)
+    assert body.inertia[2, 2] == pytest.approx(4.0, rel=CLOSED_FORM_RTOL)
+    bottom = body.positions[:4] - body.com  # the cube's first four particles: its bottom face
+    assert np.hypot(bottom[:, 0], bottom[:, 1]) == pytest.approx([np.sqrt(0.5)] * 4)
+    a = 0.5 * 8.0 * G * np.sqrt(0.5) / 4.0  # rad/s^2
+    assert scene.expected.spin_time == pytest.approx(5.0 / a, rel=CLOSED_FORM_RTOL)
+    assert scene.expected.spin_angle == pytest.approx(25.0 / (2 * a), rel=CLOSED_FORM_RTOL)
+    assert scene.expected.rest_com_height == CUBE_REST_HEIGHT
+    assert scene.duration > scene.expected.spin_time + REST_WINDOW
 
 
 @pytest.mark.parametrize(("case", "degrees"), [("incline", 35.0), ("incline_stick", 20.0)])

@@ -225,6 +225,7 @@ def test_findings_tell_what_the_physics_gates_fail():
     assert compared == {
         "rebound_ratio",
         "stopping_distance",
+        "spin_angle",
         "slope_acceleration",
         "lift",
         "sideways",

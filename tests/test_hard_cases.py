@@ -43,6 +43,7 @@ def test_reference_verdicts_on_hard_cases(case, integrator):
 # The gates for the reference simulator.
 REBOUND_RTOL = 0.02  # rebound ratio within 2% of e
 STOPPING_RTOL = 0.01  # stopping distance and time within 1% of v0^2/(2 mu g) and v0/(mu g)
+SPIN_RTOL = 0.01  # spin-down angle and time within 1% of w0^2/(2a) and w0/a, as the slide
 STRAIGHT = 1e-3  # m a sliding cube may stray off its line: the physics gate's (friction.toml)
 SLOPE_RTOL = 0.01  # slope acceleration within 1% of g (sin - mu cos); stuck: within 1% of g sin
 JITTER_SPEED = 1e-6  # m/s, RMS speed of a resting cube over its last 10 s
@@ -67,6 +68,14 @@ def test_reference_slide_stops_where_friction_says(case, integrator):
         got, want = o.loc[quantity, ["measured", "expected"]]
         assert abs(got - want) <= STOPPING_RTOL * want, f"{case}/{integrator}: {quantity} {got}"
     assert o.loc["sideways", "measured"] <= STRAIGHT, f"{case}/{integrator}: off its line"
+
+
+@pytest.mark.parametrize("integrator", RIGID)
+def test_reference_spin_down_turns_where_friction_says(integrator):
+    _, o = measured("spin_down", "reference", integrator)
+    for quantity in ("spin_angle", "spin_time"):
+        got, want = o.loc[quantity, ["measured", "expected"]]
+        assert abs(got - want) <= SPIN_RTOL * want, f"spin_down/{integrator}: {quantity} {got}"
 
 
 @pytest.mark.parametrize("integrator", RIGID)

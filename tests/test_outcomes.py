@@ -340,6 +340,41 @@ def test_sideways_is_the_furthest_stray_from_the_line_of_the_starting_velocity(h
     np.testing.assert_array_equal(path["t"], t)
 
 
+@pytest.mark.parametrize("w0", [5.0, -12.0])
+def test_spin_angle_and_time_of_uniform_angular_deceleration(w0):
+    """Spun about the floor's normal at w0 (rad/s) and slowed at 7 rad/s^2: the angle turned and
+    the time to stop, exact; at -12 rad/s it turns 10.3 rad, past several half turns, the way
+    it was spun (the angle's sign)."""
+    a = 7.0
+    stop, angle = abs(w0) / a, w0**2 / (2 * a)
+    scene = floor_scene(
+        Expected(spin_angle=angle, spin_time=stop, rest_com_height=REST),
+        bodies=(cube(angular_velocity=(0.0, 0.0, w0)),),
+        duration=2.5,
+    )
+    t = np.arange(0.0, 2.5, SLIDE_SAMPLE)
+    moving = t < stop
+    sign = np.sign(w0)
+    turned = sign * np.where(moving, abs(w0) * t - 0.5 * a * t**2, angle)
+    w = np.zeros((len(t), 3))
+    w[:, 2] = sign * np.where(moving, abs(w0) - a * t, 0.0)
+    q = np.stack([np.cos(turned / 2), 0 * t, 0 * t, np.sin(turned / 2)], axis=1)
+    x = np.tile(scene.bodies[0].com, (len(t), 1))
+    table = outcomes(trajectory(scene, t, x, np.zeros_like(x), q=q, w=w), scene)
+    assert measured(table, "spin_angle") == pytest.approx(angle, rel=EXACT_RTOL)
+    assert measured(table, "spin_time") == pytest.approx(stop, rel=EXACT_RTOL)
+
+
+def test_a_body_still_spinning_at_the_end_has_no_spin_angle():
+    scene = floor_scene(Expected(spin_angle=1.0), bodies=(cube(angular_velocity=(0, 0, 1.0)),))
+    t = np.arange(0.0, 1.0, SLIDE_SAMPLE)
+    w = np.tile([0.0, 0.0, 1.0], (len(t), 1))
+    q = np.stack([np.cos(t / 2), 0 * t, 0 * t, np.sin(t / 2)], axis=1)
+    x = np.tile(scene.bodies[0].com, (len(t), 1))
+    table = outcomes(trajectory(scene, t, x, np.zeros_like(x), q=q, w=w), scene)
+    assert np.isnan(measured(table, "spin_angle"))
+
+
 def test_a_body_starting_still_on_a_level_plane_strays_by_any_move_along_it():
     scene = floor_scene(Expected(stopping_distance=0.9), duration=1.0)  # it never starts
     t = np.arange(0.0, 1.0, SLIDE_SAMPLE)

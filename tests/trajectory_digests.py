@@ -31,6 +31,7 @@ CONTACT_CASES = (
     "bounce_e0.8",
     "slide",
     "slide_oblique",
+    "spin_down",
     "incline",
     "incline_stick",
 )

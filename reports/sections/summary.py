@@ -19,6 +19,7 @@ from reports.tables import EMPTY_CELL, markdown_table
 HEADLINE_QUANTITIES = (
     "rebound_ratio",
     "stopping_distance",
+    "spin_angle",
     "slope_acceleration",
     "rest_com_height",
     "flip_period",
