@@ -197,18 +197,26 @@ def _stop(t: np.ndarray, speed: np.ndarray) -> tuple[int, float]:
     return int(s), float(stop)
 
 
-def spin(run: RunData, body_index: int) -> tuple[float, float]:
-    """(angle (rad), time (s)) a body turns about the normal of the plane it starts on
-    (`plane_under`) from t = 0 until its angular speed about that normal stays below STOP_SPIN;
-    the time refined as `stopping`'s. The angle is the rotation about the normal since the
-    start, unwrapped sample to sample, at the first sample of the stopped stretch, its sign
-    that of the starting spin. NaN, NaN: no such plane, or still spinning at the end."""
-    scene = run.scene
-    body = scene.bodies[body_index]
+def _spin_axis(scene: Scene, body: Body) -> tuple[np.ndarray, float] | None:
+    """The unit normal of the plane a body starts on (`plane_under`) and the sign of its starting
+    spin about it; None: no such plane."""
     plane = plane_under(scene, body)
     if plane is None:
-        return np.nan, np.nan
+        return None
     n = plane.unit_normal
+    return n, (1.0 if np.dot(body.angular_velocity, n) >= 0 else -1.0)
+
+
+def spin(run: RunData, body_index: int) -> tuple[float, float]:
+    """(angle (rad), time (s)) a body turns about the normal of the plane it starts on from t = 0
+    until its angular speed about that normal stays below STOP_SPIN; the time refined between
+    samples (`_stop`). The angle is the rotation about the normal since the start, unwrapped
+    sample to sample, at the first sample of the stopped stretch, positive the way it was spun.
+    NaN, NaN: no such plane, or still spinning at the end."""
+    found = _spin_axis(run.scene, run.scene.bodies[body_index])
+    if found is None:
+        return np.nan, np.nan
+    n, sign = found
     a = run.arrays(body_index)
     s, stop = _stop(a["t"], np.abs(a["w"] @ n) / STOP_SPIN)
     if s < 0:
@@ -218,8 +226,22 @@ def spin(run: RunData, body_index: int) -> tuple[float, float]:
     w = q[:, 0] * q0[0] - q[:, 1:] @ q0[1:]
     axis = q[:, 0, None] * q0[1:] + q0[0] * q[:, 1:] + np.cross(q[:, 1:], q0[1:])
     turned = np.unwrap(2.0 * np.arctan2(axis @ n, w))
-    sign = 1.0 if np.dot(body.angular_velocity, n) >= 0 else -1.0
     return float(sign * turned[s]), stop
+
+
+def spin_rate(traj: Trajectory, scene: Scene, body_index: int = 0) -> pd.DataFrame | None:
+    """A spun body's angular speed about the normal of the plane it starts on, per sample: t (s)
+    and `rate` (rad/s, positive the way it was spun). None: the scene states no spin closed
+    form, or the body starts on no plane."""
+    expected = scene.expected
+    if expected is None or (expected.spin_angle is None and expected.spin_time is None):
+        return None
+    found = _spin_axis(scene, scene.bodies[body_index])
+    if found is None:
+        return None
+    n, sign = found
+    a = RunData(traj, scene).arrays(body_index)
+    return pd.DataFrame({"t": a["t"], "rate": sign * (a["w"] @ n)})
 
 
 def _spin_rows(run: RunData) -> list[tuple]:
@@ -281,9 +303,9 @@ def slope_acceleration(run: RunData, body_index: int) -> tuple[float, bool]:
 
 def lift(run: RunData, body_index: int) -> float:
     """The largest clearance (m) of a body's lowest particle surface above the plane it starts
-    on (`plane_under`) over the run: the stopping and slope closed forms have it slide on that
-    plane throughout, clearance 0; a body that hops off it lifts by its hops' height. NaN: no
-    such plane, or no rigid sample."""
+    on (`plane_under`) over the run: the stopping, slope and spin closed forms have it slide
+    on that plane throughout, clearance 0; a body that hops off it lifts by its hops' height.
+    NaN: no such plane, or no rigid sample."""
     plane = plane_under(run.scene, run.scene.bodies[body_index])
     if plane is None:
         return np.nan
@@ -293,8 +315,8 @@ def lift(run: RunData, body_index: int) -> float:
 
 
 def _states_a_slide(scene: Scene) -> bool:
-    """Whether the scene states a stopping or slope closed form: both have its bodies slide on
-    their plane along a straight line."""
+    """Whether the scene states a stopping, slope or spin closed form: each has its bodies
+    slide on their plane, along a straight line (a body spun in place: its COM stays put)."""
     expected = scene.expected
     return expected is not None and any(
         value is not None
@@ -302,6 +324,8 @@ def _states_a_slide(scene: Scene) -> bool:
             expected.stopping_distance,
             expected.stopping_time,
             expected.slope_acceleration,
+            expected.spin_angle,
+            expected.spin_time,
         )
     )
 
@@ -309,9 +333,9 @@ def _states_a_slide(scene: Scene) -> bool:
 def _line(scene: Scene, body: Body) -> tuple[Plane, np.ndarray] | None:
     """(plane, unit direction) of the straight line the stopping and slope closed forms have
     `body` slide along within the plane it starts on: downhill on a slope, along its starting
-    velocity on a level plane (the zero vector for a body starting still there: it should stay
-    put). None: no such plane, or the line is not straight (a slope crossed by a starting
-    velocity)."""
+    velocity on a level plane (the zero vector for a body starting still there, or spun in
+    place: it should stay put). None: no such plane, or the line is not straight (a slope
+    crossed by a starting velocity)."""
     plane = plane_under(scene, body)
     if plane is None:
         return None
@@ -356,8 +380,8 @@ def path_on_line(traj: Trajectory, scene: Scene, body_index: int = 0) -> pd.Data
 
 def _path_rows(run: RunData) -> list[tuple]:
     """Per body, its `lift` off its plane and how far it strays `sideways`, both against 0,
-    where the scene states a stopping or slope closed form: both assume the body slides on its
-    plane along a straight line."""
+    where the scene states a stopping, slope or spin closed form: each assumes the body slides
+    on its plane, along a straight line or in place (`_states_a_slide`)."""
     scene = run.scene
     if not _states_a_slide(scene):
         return []

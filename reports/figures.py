@@ -1,9 +1,9 @@
 """Which figures the report draws, where they go, and the keys the sections find them by.
 
-Figures are keyed by (case, kind): per case "drift", "path" (a sliding body's), "convergence",
-"work_precision" and "stability", and for `ANIMATED_CASES` "animation"; `THROUGHPUT_FIGURE` and
-`SCALING_FIGURE` for the two figures across cases. How each figure is drawn is `reports.plots`,
-how an animation is `reports.animation`.
+Figures are keyed by (case, kind): per case "drift", "path" (a sliding body's), "spin" (a spun
+body's), "convergence", "work_precision" and "stability", and for `ANIMATED_CASES` "animation";
+`THROUGHPUT_FIGURE` and `SCALING_FIGURE` for the two figures across cases. How each figure is
+drawn is `reports.plots`, how an animation is `reports.animation`.
 """
 
 from __future__ import annotations
@@ -51,6 +51,7 @@ def _case_figures(task: tuple) -> dict[tuple, Path]:
     drawn = {
         "drift": plots.plot_drift(runs, trajectories, scene, path / f"{case}_drift.png"),
         "path": plots.plot_path(runs, trajectories, scene, path / f"{case}_path.png"),
+        "spin": plots.plot_spin(runs, trajectories, scene, path / f"{case}_spin.png"),
         "convergence": plots.plot_convergence(runs, fits, path / f"{case}_convergence.png")
         if converges
         else None,

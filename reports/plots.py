@@ -26,7 +26,7 @@ from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 from cases.scene import Scene
 from comparators.engine import ENGINES
 from comparators.metrics import conserved_quantities
-from comparators.outcomes import path_on_line
+from comparators.outcomes import path_on_line, spin_rate
 from comparators.scaling import FASTEST, scaling_rows
 from comparators.trajectory import Trajectory, atomic_path
 from reports.convergence import ERROR_CEILING_DEG, ERROR_FLOOR_DEG, pareto_front
@@ -193,6 +193,49 @@ def plot_path(
     ax.grid(True, which="major", alpha=0.3)
     at = f"dt = {chosen['dt'].iloc[0]:g} s" if one_dt else f"dt closest to {scene.dt:g} s"
     ax.set_title(f"{scene.name}: centre of mass on its plane, {at}", fontsize=10)
+    _legend_below(fig, ncols=4)
+    return _save(fig, path)
+
+
+def plot_spin(
+    runs: pd.DataFrame, trajectories: dict[str, Trajectory], scene: Scene, path: Path
+) -> Path | None:
+    """A spun body's angular speed about its plane's normal against time
+    (`comparators.outcomes.spin_rate`), one line per engine/integrator at the scene's default dt
+    (or the closest swept), with the closed form's uniform deceleration from the starting spin
+    to zero at the stated spin time. None: no spin closed form, or no trajectory."""
+    chosen = closest_runs(runs, set(trajectories), scene.dt)
+    one_dt = chosen["dt"].nunique() == 1
+    lines = []  # (label, style, rates)
+    for run in chosen.itertuples():
+        for k, body in enumerate(scene.bodies):
+            found = spin_rate(trajectories[run.key], scene, k)
+            if found is None:
+                continue
+            label = f"{run.engine} {run.integrator}" + ("" if one_dt else f" (dt {run.dt:g} s)")
+            label += f", {body.name}" if len(scene.bodies) > 1 else ""
+            style = run_style(run.engine, run.integrator) | {"markevery": 0.1, "markersize": 4}
+            lines.append((label, style, found))
+    if not lines:
+        return None
+    fig, (ax,) = _figure(4.5)
+    stop = scene.expected.spin_time
+    if stop is not None:
+        w0 = float(lines[0][2]["rate"].iloc[0])
+        ax.plot(
+            [0.0, stop, scene.duration],
+            [w0, 0.0, 0.0],
+            color="0.3",
+            linestyle=":",
+            label=f"closed form (stops at {stop:.3g} s)",
+        )
+    for label, style, found in lines:
+        ax.plot(found["t"], found["rate"], label=label, **style)
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel("spin about the plane's normal (rad/s)")
+    ax.grid(True, which="major", alpha=0.3)
+    at = f"dt = {chosen['dt'].iloc[0]:g} s" if one_dt else f"dt closest to {scene.dt:g} s"
+    ax.set_title(f"{scene.name}: spin against time, {at}", fontsize=10)
     _legend_below(fig, ncols=4)
     return _save(fig, path)
 

@@ -158,6 +158,12 @@ PATH = (
     "where one of its two directions stops first, and friction turned off the slip by the "
     "body's inertia curves it."
 )
+SPIN = (
+    "How to read: the body's spin about the normal of the plane it stands on against time; "
+    "Coulomb friction at contacts on one circle about the axis slows it uniformly, down the "
+    "dotted closed form to zero; a friction pyramid slows it faster where its contacts slide "
+    "off the pyramid's axes."
+)
 CONVERGENCE = (
     "How to read: on log-log axes an error ~ dt^p is a straight line of slope p, the "
     "fitted order; fits use valid runs with errors between "

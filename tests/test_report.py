@@ -296,6 +296,19 @@ def test_a_sliding_case_gets_the_path_on_its_plane(tmp_path):
     assert "Metrics, drift, path on its plane, convergence in dt" in text
 
 
+def test_a_spun_case_gets_its_spin_against_time(tmp_path):
+    """`spin_down` states a spin closed form: its section has the spin figure, and no path (its
+    COM has no line to follow)."""
+    scene = CATALOG["spin_down"]
+    written = write_report(build_result([scene], PAIRS[:1], (scene.dt,)), tmp_path, "pytest")
+    assert (tmp_path / "figures" / "spin_down_spin.png").stat().st_size > 10_000
+    assert not (tmp_path / "figures" / "spin_down_path.png").exists()
+    text = written["report.md"].read_text()
+    section = text[text.index("### Spin against time") :]
+    assert section.index(texts.SPIN) < section.index("figures/spin_down_spin.png")
+    assert "Metrics, drift, spin against time, convergence in dt" in text
+
+
 def test_a_case_of_the_longest_name_allowed_gets_its_figures(tmp_path):
     """Figures are named after their case and written through a temporary file: at
     NAME_MAX_LENGTH characters both names still fit the file systems' 255 bytes."""

@@ -205,11 +205,15 @@ def case_section(
     wp_alt = "orientation error against stepping time"
     work_precision = case_figure(figures, case, "work_precision", out, wp_alt)
     stability = case_figure(figures, case, "stability", out, "stability map")
-    # only a case with a sliding body's straight line has a path to draw
+    # only a case with a sliding body's straight line has a path to draw, a spun one's a spin
     path = []
     if (case, "path") in figures:
         path_figure = case_figure(figures, case, "path", out, "path on its plane")
         path = subsection("Path on its plane", texts.PATH, path_figure)
+    spin = []
+    if (case, "spin") in figures:
+        spin_figure = case_figure(figures, case, "spin", out, "spin against time")
+        spin = subsection("Spin against time", texts.SPIN, spin_figure)
     fit_table = _fit_table(fits[fits["case"] == case])
     # the motion stays outside the fold: a reader sees each core case move without a click
     motion = []
@@ -221,10 +225,12 @@ def case_section(
         *subsection("Metrics", texts.METRICS + solver, _metrics_table(runs)),
         *subsection("Drift over time", texts.DRIFT, drift),
         *path,
+        *spin,
         *subsection("Convergence in dt", texts.CONVERGENCE + contact, errors, fit_table),
         *subsection("Work-precision", texts.WORK_PRECISION, work_precision, pareto_sentence(runs)),
         *subsection("Stability map", texts.STABILITY_MAP, stability),
         *case_outcomes(result, case),
     ]
-    named = (*CASE_DETAIL[:2], *(("path on its plane",) if path else ()), *CASE_DETAIL[2:])
+    shown = (("path on its plane", path), ("spin against time", spin))
+    named = (*CASE_DETAIL[:2], *(name for name, lines in shown if lines), *CASE_DETAIL[2:])
     return [*_intro(result, case), *motion, *folded(", ".join(named), detail)]
