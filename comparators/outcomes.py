@@ -197,6 +197,14 @@ def _stop(t: np.ndarray, speed: np.ndarray) -> tuple[int, float]:
     return int(s), float(stop)
 
 
+def _states_a_spin(scene: Scene) -> bool:
+    """Whether the scene states a spin closed form (angle or time)."""
+    expected = scene.expected
+    return expected is not None and (
+        expected.spin_angle is not None or expected.spin_time is not None
+    )
+
+
 def _spin_axis(scene: Scene, body: Body) -> tuple[np.ndarray, float] | None:
     """The unit normal of the plane a body starts on (`plane_under`) and the sign of its starting
     spin about it; None: no such plane."""
@@ -233,10 +241,7 @@ def spin_rate(traj: Trajectory, scene: Scene, body_index: int = 0) -> pd.DataFra
     """A spun body's angular speed about the normal of the plane it starts on, per sample: t (s)
     and `rate` (rad/s, positive the way it was spun). None: the scene states no spin closed
     form, or the body starts on no plane."""
-    expected = scene.expected
-    if expected is None or (expected.spin_angle is None and expected.spin_time is None):
-        return None
-    found = _spin_axis(scene, scene.bodies[body_index])
+    found = _spin_axis(scene, scene.bodies[body_index]) if _states_a_spin(scene) else None
     if found is None:
         return None
     n, sign = found
@@ -245,9 +250,8 @@ def spin_rate(traj: Trajectory, scene: Scene, body_index: int = 0) -> pd.DataFra
 
 
 def _spin_rows(run: RunData) -> list[tuple]:
-    scene = run.scene
-    expected = scene.expected
-    if expected is None or (expected.spin_angle is None and expected.spin_time is None):
+    scene, expected = run.scene, run.scene.expected
+    if not _states_a_spin(scene):
         return []
     rows = []
     for k, body in enumerate(scene.bodies):
@@ -318,14 +322,15 @@ def _states_a_slide(scene: Scene) -> bool:
     """Whether the scene states a stopping, slope or spin closed form: each has its bodies
     slide on their plane, along a straight line (a body spun in place: its COM stays put)."""
     expected = scene.expected
-    return expected is not None and any(
-        value is not None
-        for value in (
-            expected.stopping_distance,
-            expected.stopping_time,
-            expected.slope_acceleration,
-            expected.spin_angle,
-            expected.spin_time,
+    return _states_a_spin(scene) or (
+        expected is not None
+        and any(
+            value is not None
+            for value in (
+                expected.stopping_distance,
+                expected.stopping_time,
+                expected.slope_acceleration,
+            )
         )
     )
 

@@ -129,6 +129,13 @@ def closest_runs(runs: pd.DataFrame, keys: set[str], dt: float) -> pd.DataFrame:
     return have.groupby(PAIR, sort=False).head(1).drop(columns="_distance").sort_index()
 
 
+def _at(chosen: pd.DataFrame, scene: Scene) -> str:
+    """The dt a figure of the default-dt runs shows, as its title says it."""
+    if chosen["dt"].nunique() == 1:
+        return f"dt = {chosen['dt'].iloc[0]:g} s"
+    return f"dt closest to {scene.dt:g} s"
+
+
 def plot_drift(
     runs: pd.DataFrame, trajectories: dict[str, Trajectory], scene: Scene, path: Path
 ) -> Path | None:
@@ -152,10 +159,28 @@ def plot_drift(
     for ax in (ax_e, ax_l):
         ax.set_yscale("log")
         ax.grid(True, which="major", alpha=0.3)
-    at = f"dt = {chosen['dt'].iloc[0]:g} s" if one_dt else f"dt closest to {scene.dt:g} s"
-    ax_e.set_title(f"{scene.name}: energy and angular momentum drift, {at}", fontsize=10)
+    ax_e.set_title(
+        f"{scene.name}: energy and angular momentum drift, {_at(chosen, scene)}", fontsize=10
+    )
     _legend_below(fig, ncols=4)
     return _save(fig, path)
+
+
+def _body_lines(chosen: pd.DataFrame, trajectories: dict, scene: Scene, measure) -> list:
+    """(label, style, table) per chosen run and body that `measure(trajectory, scene, body)`
+    gives a table for (a sliding body's path, a spun body's spin)."""
+    one_dt = chosen["dt"].nunique() == 1
+    lines = []
+    for run in chosen.itertuples():
+        for k, body in enumerate(scene.bodies):
+            found = measure(trajectories[run.key], scene, k)
+            if found is None:
+                continue
+            label = f"{run.engine} {run.integrator}" + ("" if one_dt else f" (dt {run.dt:g} s)")
+            label += f", {body.name}" if len(scene.bodies) > 1 else ""
+            style = run_style(run.engine, run.integrator) | {"markevery": 0.1, "markersize": 4}
+            lines.append((label, style, found))
+    return lines
 
 
 def plot_path(
@@ -167,23 +192,13 @@ def plot_path(
     findings allow across and, where the scene states one, the closed-form stopping distance.
     None: no body with such a line, or no trajectory."""
     chosen = closest_runs(runs, set(trajectories), scene.dt)
-    one_dt = chosen["dt"].nunique() == 1
-    lines = []  # (label, style, path)
-    for run in chosen.itertuples():
-        for k, body in enumerate(scene.bodies):
-            found = path_on_line(trajectories[run.key], scene, k)
-            if found is None:
-                continue
-            label = f"{run.engine} {run.integrator}" + ("" if one_dt else f" (dt {run.dt:g} s)")
-            label += f", {body.name}" if len(scene.bodies) > 1 else ""
-            style = run_style(run.engine, run.integrator) | {"markevery": 0.1, "markersize": 4}
-            lines.append((label, style, found))
+    lines = _body_lines(chosen, trajectories, scene, path_on_line)
     if not lines:
         return None
     fig, (ax,) = _figure(4.5)
     band = ABSOLUTE_TOLERANCES["sideways"] * 1e3  # mm
     ax.axhspan(-band, band, color="0.9", label=f"within {band:g} mm of the line")
-    stop = scene.expected.stopping_distance if scene.expected is not None else None
+    stop = scene.expected.stopping_distance
     if stop is not None:
         ax.axvline(stop, color="0.3", linestyle=":", label=f"closed form: stops at {stop:g} m")
     for label, style, found in lines:
@@ -191,8 +206,7 @@ def plot_path(
     ax.set_xlabel("along the line it should slide on (m)")
     ax.set_ylabel("across it (mm; + to its left)")
     ax.grid(True, which="major", alpha=0.3)
-    at = f"dt = {chosen['dt'].iloc[0]:g} s" if one_dt else f"dt closest to {scene.dt:g} s"
-    ax.set_title(f"{scene.name}: centre of mass on its plane, {at}", fontsize=10)
+    ax.set_title(f"{scene.name}: centre of mass on its plane, {_at(chosen, scene)}", fontsize=10)
     _legend_below(fig, ncols=4)
     return _save(fig, path)
 
@@ -205,37 +219,21 @@ def plot_spin(
     (or the closest swept), with the closed form's uniform deceleration from the starting spin
     to zero at the stated spin time. None: no spin closed form, or no trajectory."""
     chosen = closest_runs(runs, set(trajectories), scene.dt)
-    one_dt = chosen["dt"].nunique() == 1
-    lines = []  # (label, style, rates)
-    for run in chosen.itertuples():
-        for k, body in enumerate(scene.bodies):
-            found = spin_rate(trajectories[run.key], scene, k)
-            if found is None:
-                continue
-            label = f"{run.engine} {run.integrator}" + ("" if one_dt else f" (dt {run.dt:g} s)")
-            label += f", {body.name}" if len(scene.bodies) > 1 else ""
-            style = run_style(run.engine, run.integrator) | {"markevery": 0.1, "markersize": 4}
-            lines.append((label, style, found))
+    lines = _body_lines(chosen, trajectories, scene, spin_rate)
     if not lines:
         return None
     fig, (ax,) = _figure(4.5)
     stop = scene.expected.spin_time
     if stop is not None:
         w0 = float(lines[0][2]["rate"].iloc[0])
-        ax.plot(
-            [0.0, stop, scene.duration],
-            [w0, 0.0, 0.0],
-            color="0.3",
-            linestyle=":",
-            label=f"closed form (stops at {stop:.3g} s)",
-        )
+        closed = ([0.0, stop, scene.duration], [w0, 0.0, 0.0])
+        ax.plot(*closed, color="0.3", linestyle=":", label=f"closed form (stops at {stop:.3g} s)")
     for label, style, found in lines:
         ax.plot(found["t"], found["rate"], label=label, **style)
     ax.set_xlabel("t (s)")
     ax.set_ylabel("spin about the plane's normal (rad/s)")
     ax.grid(True, which="major", alpha=0.3)
-    at = f"dt = {chosen['dt'].iloc[0]:g} s" if one_dt else f"dt closest to {scene.dt:g} s"
-    ax.set_title(f"{scene.name}: spin against time, {at}", fontsize=10)
+    ax.set_title(f"{scene.name}: spin against time, {_at(chosen, scene)}", fontsize=10)
     _legend_below(fig, ncols=4)
     return _save(fig, path)
 
