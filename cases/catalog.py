@@ -361,6 +361,24 @@ register(partial(bounce, "bounce_e0.3", 0.3))
 register(partial(bounce, "bounce_e0.8", 0.8))
 
 
+def _friction_on_floor(name: str, description: str, body: Body, mu: float, expected) -> Scene:
+    """A body moving on the floor until Coulomb friction mu stops it, no bounce: 2 s at dt 0.001,
+    every step sampled (the stop's time is refined between samples)."""
+    return Scene(
+        name=name,
+        description=description,
+        tags=("hard", "contact-closed-form", "gravity", "contact", "rest"),
+        duration=2.0,
+        dt=0.001,
+        sample_interval=0.001,
+        gravity=GRAVITY,
+        contact=Contact(restitution=0.0, friction=mu),
+        planes=(builders.floor(),),
+        bodies=(body,),
+        expected=expected,
+    )
+
+
 def slide(name: str, what: str, body: Body, degrees: float) -> Scene:
     """`what` (`body`, as high as the seed's cube and standing on a face on the floor) launched
     along it at 3 m/s, `degrees` off the world's x axis. Isotropic Coulomb friction stops it on
@@ -373,20 +391,13 @@ def slide(name: str, what: str, body: Body, degrees: float) -> Scene:
     heading = math.radians(degrees)
     body = dataclasses.replace(body, velocity=(v0 * math.cos(heading), v0 * math.sin(heading), 0.0))
     towards = f", {degrees:g} degrees off the x axis," if degrees else ""
-    return Scene(
-        name=name,
-        description=f"{what} launched along the floor at {v0:g} m/s{towards} with mu = "
-        f"{mu:g}: stops after v0^2 / (2 mu g) in v0 / (mu g)"
-        + (", on its starting line." if degrees else "."),
-        tags=("hard", "contact-closed-form", "gravity", "contact", "rest"),
-        duration=2.0,
-        dt=0.001,
-        sample_interval=0.001,
-        gravity=GRAVITY,
-        contact=Contact(restitution=0.0, friction=mu),
-        planes=(builders.floor(),),
-        bodies=(body,),
-        expected=Expected(
+    return _friction_on_floor(
+        name,
+        f"{what} launched along the floor at {v0:g} m/s{towards} with mu = {mu:g}: stops after "
+        "v0^2 / (2 mu g) in v0 / (mu g)" + (", on its starting line." if degrees else "."),
+        body,
+        mu,
+        Expected(
             stopping_distance=v0**2 / (2 * mu * G),
             stopping_time=v0 / (mu * G),
             rest_com_height=CUBE_REST_HEIGHT,
@@ -425,22 +436,14 @@ def spin_down() -> Scene:
     bottom = body.positions[body.positions[:, 2] == body.positions[:, 2].min()]
     r = float(np.hypot(*(bottom - body.com)[:, :2].T).mean())  # the four's one radius
     a = mu * body.mass * G * r / body.inertia[2, 2]
-    return Scene(
-        name="spin_down",
-        description=f"The seed's cube standing on the floor, spun at {w0:g} rad/s about the "
-        f"vertical, mu = {mu:g}: its corners' friction stops it after w0^2 / (2 a) in w0 / a, "
-        f"a = mu m g r / I = {a:.3g} rad/s^2.",
-        tags=("hard", "contact-closed-form", "gravity", "contact", "rest"),
-        duration=2.0,
-        dt=0.001,
-        sample_interval=0.001,
-        gravity=GRAVITY,
-        contact=Contact(restitution=0.0, friction=mu),
-        planes=(builders.floor(),),
-        bodies=(body,),
-        expected=Expected(
-            spin_angle=w0**2 / (2 * a), spin_time=w0 / a, rest_com_height=CUBE_REST_HEIGHT
-        ),
+    return _friction_on_floor(
+        "spin_down",
+        f"The seed's cube standing on the floor, spun at {w0:g} rad/s about the vertical, mu = "
+        f"{mu:g}: its corners' friction stops it after w0^2 / (2 a) in w0 / a, a = mu m g r / I "
+        f"= {a:.3g} rad/s^2.",
+        body,
+        mu,
+        Expected(spin_angle=w0**2 / (2 * a), spin_time=w0 / a, rest_com_height=CUBE_REST_HEIGHT),
     )
 
 
