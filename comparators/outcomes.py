@@ -1,6 +1,7 @@
 """Outcomes measured from any engine's trajectory and the scene: the quantities physics predicts
-in closed form (rebound ratio, apex heights, stopping distance and time, slope acceleration, a
-sliding body's path on its plane, rest, momentum, flip period), each against its expected value.
+in closed form (rebound ratio, apex heights, rest, momentum, flip period, and from
+`comparators.sliding` a sliding or spinning body's distance, time, turn, slope acceleration
+and path on its plane), each against its expected value.
 
 Everything here reads the trajectory table (COM position and velocity, orientation, angular
 velocity per sample; `comparators.trajectory`) and the scene, never an engine's internals, so
@@ -17,15 +18,16 @@ import pandas as pd
 
 from cases.exact import EQUAL_MOMENTS_RTOL, exact_states, exact_trajectory_available
 from cases.scene import Body, Plane, Scene
-from comparators.metrics import REST_ANGULAR_SPEED, REST_SPEED, support_plane
+from comparators.metrics import support_plane
 from comparators.run_data import (
     RunData,
     contact_planes,
     expects_rest,
     final_window,
-    plane_under,
+    quantity_label,
     starts_at_rest,
 )
+from comparators.sliding import STOP_SPEED, path_rows, slope_rows, spin_rows, stopping_rows
 from comparators.trajectory import Trajectory
 from rigidmath.quaternion import quats_to_matrices
 
@@ -40,30 +42,14 @@ MIN_IMPACT_FRACTION = 0.01
 # Clearances below this (m) are the plane itself: metre-scale coordinates round to ~1e-16 m, which
 # carried ballistically (sqrt(2 g c)) would read as a rebound of 6e-8 m/s.
 CLEARANCE_ROUNDING = 1e-12
-# A sliding body has stopped once its COM speed stays below this (m/s): REST_SPEED again. A body
-# decelerating at mu g >= 1 m/s^2 covers 0.5 um after falling below it.
-STOP_SPEED = REST_SPEED
-# A spinning body has stopped once its angular speed about its plane's normal stays below this
-# (rad/s): REST_ANGULAR_SPEED again; decelerating at >= 1 rad/s^2 it turns 0.5 urad after.
-STOP_SPIN = REST_ANGULAR_SPEED
-# Slope acceleration is fitted after this fraction of the run: soft contacts (MuJoCo, PyBullet)
-# take a few steps to reach their steady penetration on a body placed on the plane.
-SLOPE_SETTLE_FRACTION = 0.1
 # A stack stands while every body's COM stays within this of where it started (m): far beyond
 # soft-contact settling (1e-4 m), well below a tenth of a cube's edge.
 STAND_DISTANCE = 0.05
-# An in-plane component of gravity (a slope), or of a starting velocity across the downhill line,
-# smaller than this relative to the whole is the rounding of the scene's coordinates (~1e-16).
-DIRECTION_RTOL = 1e-12
 
 
 # ---- measurements ------------------------------------------------------------------------------
 # Each returns rows (quantity, measured, expected, unit); none when the scene does not state what
 # it measures. Multi-body scenes prefix per-body quantities with "<body>.".
-
-
-def _label(scene: Scene, body: Body, quantity: str) -> str:
-    return quantity if len(scene.bodies) == 1 else f"{body.name}.{quantity}"
 
 
 def bounces(run: RunData, body_index: int, plane: Plane) -> pd.DataFrame:
@@ -133,281 +119,12 @@ def _bounce_rows(run: RunData) -> list[tuple]:
         if expected.rebound_ratio is not None:
             first = found["ratio"].iloc[:count] if len(found) else []
             ratio = float(np.mean(first)) if len(first) else np.nan
-            rows.append((_label(scene, body, "rebound_ratio"), ratio, expected.rebound_ratio, "1"))
+            rows.append(
+                (quantity_label(scene, body, "rebound_ratio"), ratio, expected.rebound_ratio, "1")
+            )
         for i, h in enumerate(expected.apex_heights or ()):
             apex = float(found["apex"].iloc[i]) if i < len(found) else np.nan
-            rows.append((_label(scene, body, f"apex_height_{i + 1}"), apex, h, "m"))
-    return rows
-
-
-def stopping(run: RunData, body_index: int) -> tuple[float, float]:
-    """(distance (m), time (s)) from t = 0 until the COM speed stays below STOP_SPEED.
-
-    The distance is the COM displacement along the support plane (all of it without one) at
-    the first sample of the stopped stretch; the time is refined between samples (`_stop`).
-    NaN, NaN: still moving at the end.
-    """
-    a = run.arrays(body_index)
-    s, stop = _stop(a["t"], np.linalg.norm(a["v"], axis=1) / STOP_SPEED)
-    if s < 0:
-        return np.nan, np.nan
-    shift = a["x"][s] - a["x"][0]
-    plane = support_plane(run.scene)
-    if plane is not None:
-        shift = shift - np.dot(shift, plane.unit_normal) * plane.unit_normal
-    return float(np.linalg.norm(shift)), stop
-
-
-def _stopping_rows(run: RunData) -> list[tuple]:
-    scene = run.scene
-    expected = scene.expected
-    if expected is None or (expected.stopping_distance is None and expected.stopping_time is None):
-        return []
-    rows = []
-    for k, body in enumerate(scene.bodies):
-        distance, time = stopping(run, k)
-        if expected.stopping_distance is not None:
-            rows.append(
-                (
-                    _label(scene, body, "stopping_distance"),
-                    distance,
-                    expected.stopping_distance,
-                    "m",
-                )
-            )
-        if expected.stopping_time is not None:
-            rows.append((_label(scene, body, "stopping_time"), time, expected.stopping_time, "s"))
-    return rows
-
-
-def _stop(t: np.ndarray, speed: np.ndarray) -> tuple[int, float]:
-    """(first sample of the stretch where `speed` stays below its stop threshold, the stop's
-    time), `speed` already divided by that threshold: the time is refined between the last
-    moving sample and that one by continuing the last sampled deceleration to zero, exact for
-    uniform deceleration, otherwise within one sample interval. (-1, NaN): still moving."""
-    moving = np.flatnonzero(speed >= 1.0)
-    if len(moving) and moving[-1] == len(speed) - 1:
-        return -1, np.nan
-    s = moving[-1] + 1 if len(moving) else 0
-    stop = t[s]
-    if s >= 2:
-        decel = (speed[s - 2] - speed[s - 1]) / (t[s - 1] - t[s - 2])
-        if decel > 0:
-            stop = min(t[s], t[s - 1] + speed[s - 1] / decel)
-    return int(s), float(stop)
-
-
-def _states_a_spin(scene: Scene) -> bool:
-    """Whether the scene states a spin closed form (angle or time)."""
-    expected = scene.expected
-    return expected is not None and (
-        expected.spin_angle is not None or expected.spin_time is not None
-    )
-
-
-def _spin_axis(scene: Scene, body: Body) -> tuple[np.ndarray, float] | None:
-    """The unit normal of the plane a body starts on (`plane_under`) and the sign of its starting
-    spin about it; None: no such plane."""
-    plane = plane_under(scene, body)
-    if plane is None:
-        return None
-    n = plane.unit_normal
-    return n, (1.0 if np.dot(body.angular_velocity, n) >= 0 else -1.0)
-
-
-def spin(run: RunData, body_index: int) -> tuple[float, float]:
-    """(angle (rad), time (s)) a body turns about the normal of the plane it starts on from t = 0
-    until its angular speed about that normal stays below STOP_SPIN; the time refined between
-    samples (`_stop`). The angle is the rotation about the normal since the start, unwrapped
-    sample to sample, at the first sample of the stopped stretch, positive the way it was spun.
-    NaN, NaN: no such plane, or still spinning at the end."""
-    found = _spin_axis(run.scene, run.scene.bodies[body_index])
-    if found is None:
-        return np.nan, np.nan
-    n, sign = found
-    a = run.arrays(body_index)
-    s, stop = _stop(a["t"], np.abs(a["w"] @ n) / STOP_SPIN)
-    if s < 0:
-        return np.nan, np.nan
-    q = a["q"]  # (w, x, y, z): the turn since the start is q q0^-1, its angle about n
-    q0 = q[0] * np.array([1.0, -1.0, -1.0, -1.0])
-    w = q[:, 0] * q0[0] - q[:, 1:] @ q0[1:]
-    axis = q[:, 0, None] * q0[1:] + q0[0] * q[:, 1:] + np.cross(q[:, 1:], q0[1:])
-    turned = np.unwrap(2.0 * np.arctan2(axis @ n, w))
-    return float(sign * turned[s]), stop
-
-
-def spin_rate(traj: Trajectory, scene: Scene, body_index: int = 0) -> pd.DataFrame | None:
-    """A spun body's angular speed about the normal of the plane it starts on, per sample: t (s)
-    and `rate` (rad/s, positive the way it was spun). None: the scene states no spin closed
-    form, or the body starts on no plane."""
-    found = _spin_axis(scene, scene.bodies[body_index]) if _states_a_spin(scene) else None
-    if found is None:
-        return None
-    n, sign = found
-    a = RunData(traj, scene).arrays(body_index)
-    return pd.DataFrame({"t": a["t"], "rate": sign * (a["w"] @ n)})
-
-
-def _spin_rows(run: RunData) -> list[tuple]:
-    scene, expected = run.scene, run.scene.expected
-    if not _states_a_spin(scene):
-        return []
-    rows = []
-    for k, body in enumerate(scene.bodies):
-        angle, time = spin(run, k)
-        if expected.spin_angle is not None:
-            rows.append((_label(scene, body, "spin_angle"), angle, expected.spin_angle, "rad"))
-        if expected.spin_time is not None:
-            rows.append((_label(scene, body, "spin_time"), time, expected.spin_time, "s"))
-    return rows
-
-
-def _without(vector, unit) -> np.ndarray:
-    """`vector` (or each row of it) less its component along the unit vector `unit`."""
-    vector = np.asarray(vector, dtype=float)
-    return vector - np.multiply.outer(vector @ unit, unit)
-
-
-def _in_plane(vector, plane: Plane) -> np.ndarray:
-    """The component of `vector` (or of each row of it) within `plane`."""
-    return _without(vector, plane.unit_normal)
-
-
-def _downhill(scene: Scene, plane: Plane) -> np.ndarray | None:
-    """The unit direction of gravity's component within `plane`; None on a level plane."""
-    g = np.asarray(scene.gravity, dtype=float)
-    downhill = _in_plane(g, plane)
-    size = np.linalg.norm(downhill)
-    return downhill / size if size > DIRECTION_RTOL * np.linalg.norm(g) else None
-
-
-def slope_acceleration(run: RunData, body_index: int) -> tuple[float, bool]:
-    """(acceleration (m/s^2), slides) of one body down the plane it starts on.
-
-    The acceleration is the least-squares fit of the COM's downhill displacement s(t) (along
-    gravity's component in the plane) by s0 + v0 t + a t^2 / 2 over the run after its first
-    SLOPE_SETTLE_FRACTION: exact for uniform acceleration, ~0 for a body that sticks. It slides
-    when its COM speed at the end is at least STOP_SPEED. NaN, False: no plane with a downhill
-    direction under it.
-    """
-    plane = plane_under(run.scene, run.scene.bodies[body_index])
-    downhill = None if plane is None else _downhill(run.scene, plane)
-    if downhill is None:
-        return np.nan, False
-    a = run.arrays(body_index)
-    t, s = a["t"], (a["x"] - a["x"][0]) @ downhill
-    fit = t >= t[0] + SLOPE_SETTLE_FRACTION * (t[-1] - t[0])
-    if fit.sum() < 3 or not np.isfinite(s[fit]).all():
-        return np.nan, False
-    acceleration = 2.0 * np.polyfit(t[fit], s[fit], 2)[0]
-    slides = bool(np.linalg.norm(a["v"][-1]) >= STOP_SPEED)
-    return float(acceleration), slides
-
-
-def lift(run: RunData, body_index: int) -> float:
-    """The largest clearance (m) of a body's lowest particle surface above the plane it starts
-    on (`plane_under`) over the run: the stopping, slope and spin closed forms have it slide
-    on that plane throughout, clearance 0; a body that hops off it lifts by its hops' height.
-    NaN: no such plane, or no rigid sample."""
-    plane = plane_under(run.scene, run.scene.bodies[body_index])
-    if plane is None:
-        return np.nan
-    clearance = run.clearance(body_index, plane)
-    known = clearance[np.isfinite(clearance)]
-    return float(max(known.max(), 0.0)) if len(known) else np.nan
-
-
-def _states_a_slide(scene: Scene) -> bool:
-    """Whether the scene states a stopping, slope or spin closed form: each has its bodies
-    slide on their plane, along a straight line (a body spun in place: its COM stays put)."""
-    expected = scene.expected
-    return _states_a_spin(scene) or (
-        expected is not None
-        and any(
-            value is not None
-            for value in (
-                expected.stopping_distance,
-                expected.stopping_time,
-                expected.slope_acceleration,
-            )
-        )
-    )
-
-
-def _line(scene: Scene, body: Body) -> tuple[Plane, np.ndarray] | None:
-    """(plane, unit direction) of the straight line the stopping and slope closed forms have
-    `body` slide along within the plane it starts on: downhill on a slope, along its starting
-    velocity on a level plane (the zero vector for a body starting still there, or spun in
-    place: it should stay put). None: no such plane, or the line is not straight (a slope
-    crossed by a starting velocity)."""
-    plane = plane_under(scene, body)
-    if plane is None:
-        return None
-    start = _in_plane(body.velocity, plane)
-    line = _downhill(scene, plane)
-    if line is None:
-        speed = np.linalg.norm(start)
-        line = start / speed if speed > 0 else np.zeros(3)
-    if np.linalg.norm(_without(start, line)) > DIRECTION_RTOL * np.linalg.norm(start):
-        return None
-    return plane, line
-
-
-def sideways(run: RunData, body_index: int) -> float:
-    """The furthest (m) a body's COM strays, within the plane it starts on, from the straight
-    line the stopping and slope closed forms have it slide along (`_line`). NaN: no such line."""
-    found = _line(run.scene, run.scene.bodies[body_index])
-    if found is None:
-        return np.nan
-    plane, line = found
-    x = run.arrays(body_index)["x"]
-    off = np.linalg.norm(_without(_in_plane(x - x[0], plane), line), axis=1)
-    known = off[np.isfinite(off)]
-    return float(known.max()) if len(known) else np.nan
-
-
-def path_on_line(traj: Trajectory, scene: Scene, body_index: int = 0) -> pd.DataFrame | None:
-    """A sliding body's COM path in the plane it starts on, per sample: t (s), `along` the
-    closed forms' line (`_line`) and `across` it (m, signed: positive towards normal x line,
-    left of the line seen from above the plane). `sideways` is the largest |across|. None:
-    no stated slide (`_states_a_slide`), no line, or a body that starts still on a level plane
-    (no direction to be along)."""
-    found = _line(scene, scene.bodies[body_index]) if _states_a_slide(scene) else None
-    if found is None or not found[1].any():
-        return None
-    plane, line = found
-    a = RunData(traj, scene).arrays(body_index)
-    shift = _in_plane(a["x"] - a["x"][0], plane)
-    left = np.cross(plane.unit_normal, line)
-    return pd.DataFrame({"t": a["t"], "along": shift @ line, "across": shift @ left})
-
-
-def _path_rows(run: RunData) -> list[tuple]:
-    """Per body, its `lift` off its plane and how far it strays `sideways`, both against 0,
-    where the scene states a stopping, slope or spin closed form: each assumes the body slides
-    on its plane, along a straight line or in place (`_states_a_slide`)."""
-    scene = run.scene
-    if not _states_a_slide(scene):
-        return []
-    rows = []
-    for k, body in enumerate(scene.bodies):
-        rows.append((_label(scene, body, "lift"), lift(run, k), 0.0, "m"))
-        rows.append((_label(scene, body, "sideways"), sideways(run, k), 0.0, "m"))
-    return rows
-
-
-def _slope_rows(run: RunData) -> list[tuple]:
-    scene = run.scene
-    expected = scene.expected
-    if expected is None or expected.slope_acceleration is None:
-        return []
-    rows = []
-    for k, body in enumerate(scene.bodies):
-        acceleration, slides = slope_acceleration(run, k)
-        a0 = expected.slope_acceleration
-        rows.append((_label(scene, body, "slope_acceleration"), acceleration, a0, "m/s^2"))
-        rows.append((_label(scene, body, "slides"), float(slides), float(a0 > 0), "1/0"))
+            rows.append((quantity_label(scene, body, f"apex_height_{i + 1}"), apex, h, "m"))
     return rows
 
 
@@ -422,7 +139,12 @@ def _rest_height_rows(run: RunData) -> list[tuple]:
         x = run.arrays(k)["x"][-1]
         height = np.nan if plane is None else float(np.dot(plane.unit_normal, x - plane.point))
         rows.append(
-            (_label(scene, body, "rest_com_height"), height, scene.expected.rest_com_height, "m")
+            (
+                quantity_label(scene, body, "rest_com_height"),
+                height,
+                scene.expected.rest_com_height,
+                "m",
+            )
         )
     return rows
 
@@ -608,17 +330,17 @@ def _flip_rows(run: RunData) -> list[tuple]:
         if np.isnan(expected):
             continue
         measured = _mean_period(flip_times(t, run.arrays(k)["q"], body))
-        rows.append((_label(scene, body, "flip_period"), measured, expected, "s"))
+        rows.append((quantity_label(scene, body, "flip_period"), measured, expected, "s"))
     return rows
 
 
 MEASUREMENTS = (
     _rest_height_rows,
     _bounce_rows,
-    _stopping_rows,
-    _spin_rows,
-    _slope_rows,
-    _path_rows,
+    stopping_rows,
+    spin_rows,
+    slope_rows,
+    path_rows,
     _rest_rows,
     _stack_rows,
     _penetration_rows,

@@ -109,6 +109,11 @@ class RunData:
         return self._cached("finite", compute)
 
 
+def quantity_label(scene: Scene, body: Body, quantity: str) -> str:
+    """An outcome's name for one body: `<body>.<quantity>` in a scene of several bodies."""
+    return quantity if len(scene.bodies) == 1 else f"{body.name}.{quantity}"
+
+
 def particle_positions(traj: Trajectory, scene: Scene, body_index: int) -> np.ndarray:
     """(S, n, 3) world positions of one body's particles at every sample, placed rigidly from
     its COM x, orientation q and the particles' offsets from the COM at t = 0."""

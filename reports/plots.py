@@ -26,8 +26,8 @@ from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 from cases.scene import Scene
 from comparators.engine import ENGINES
 from comparators.metrics import conserved_quantities
-from comparators.outcomes import path_on_line, spin_rate
 from comparators.scaling import FASTEST, scaling_rows
+from comparators.sliding import path_on_line, spin_rate
 from comparators.trajectory import Trajectory, atomic_path
 from reports.convergence import ERROR_CEILING_DEG, ERROR_FLOOR_DEG, pareto_front
 from reports.findings import ABSOLUTE_TOLERANCES
@@ -186,7 +186,7 @@ def _body_lines(chosen: pd.DataFrame, trajectories: dict, scene: Scene, measure)
 def plot_path(
     runs: pd.DataFrame, trajectories: dict[str, Trajectory], scene: Scene, path: Path
 ) -> Path | None:
-    """Each sliding body's COM path on its plane (`comparators.outcomes.path_on_line`): along
+    """Each sliding body's COM path on its plane (`comparators.sliding.path_on_line`): along
     the closed forms' straight line (m) against across it (mm, magnified), one line per
     engine/integrator at the scene's default dt (or the closest swept), with the band the
     findings allow across and, where the scene states one, the closed-form stopping distance.
@@ -215,7 +215,7 @@ def plot_spin(
     runs: pd.DataFrame, trajectories: dict[str, Trajectory], scene: Scene, path: Path
 ) -> Path | None:
     """A spun body's angular speed about its plane's normal against time
-    (`comparators.outcomes.spin_rate`), one line per engine/integrator at the scene's default dt
+    (`comparators.sliding.spin_rate`), one line per engine/integrator at the scene's default dt
     (or the closest swept), with the closed form's uniform deceleration from the starting spin
     to zero at the stated spin time. None: no spin closed form, or no trajectory."""
     chosen = closest_runs(runs, set(trajectories), scene.dt)

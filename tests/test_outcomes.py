@@ -16,14 +16,9 @@ from cases import CATALOG, Body, Contact, Expected, Scene
 from cases.builders import floor, seed_cube_particles
 from cases.exact import exact_states
 from comparators import RunMeta, Trajectory, run
-from comparators.outcomes import (
-    OUTCOME_COLUMNS,
-    STAND_DISTANCE,
-    bounces,
-    outcomes,
-    path_on_line,
-)
+from comparators.outcomes import OUTCOME_COLUMNS, STAND_DISTANCE, bounces, outcomes
 from comparators.run_data import RunData, particle_positions
+from comparators.sliding import path_on_line
 from comparators.verdict import (
     ENERGY_GROWTH_LIMIT,
     ENERGY_LOSS_LIMIT,
