@@ -15,6 +15,7 @@ from cases.scene import Body, Plane, Scene
 from comparators.metrics import REST_ANGULAR_SPEED, REST_SPEED, support_plane
 from comparators.run_data import RunData, plane_under, quantity_label
 from comparators.trajectory import Trajectory
+from rigidmath.quaternion import qmul, quat_conjugate
 
 # A sliding body has stopped once its COM speed stays below this (m/s): REST_SPEED again. A body
 # decelerating at mu g >= 1 m/s^2 covers 0.5 um after falling below it.
@@ -48,28 +49,27 @@ def stopping(run: RunData, body_index: int) -> tuple[float, float]:
     return float(np.linalg.norm(shift)), stop
 
 
-def stopping_rows(run: RunData) -> list[tuple]:
-    scene = run.scene
-    expected = scene.expected
-    if expected is None or (expected.stopping_distance is None and expected.stopping_time is None):
+def _measured_rows(run: RunData, measure, quantities: tuple[tuple[str, str], ...]) -> list[tuple]:
+    """Per body, a row for each of `quantities` ((name, unit), in the order `measure(run, body)`
+    returns their values) that the scene's `Expected` states; none when it states none."""
+    scene, expected = run.scene, run.scene.expected
+    stated = [
+        expected is not None and getattr(expected, name) is not None for name, _ in quantities
+    ]
+    if not any(stated):
         return []
     rows = []
     for k, body in enumerate(scene.bodies):
-        distance, time = stopping(run, k)
-        if expected.stopping_distance is not None:
-            rows.append(
-                (
-                    quantity_label(scene, body, "stopping_distance"),
-                    distance,
-                    expected.stopping_distance,
-                    "m",
+        for (name, unit), value, wanted in zip(quantities, measure(run, k), stated, strict=True):
+            if wanted:
+                rows.append(
+                    (quantity_label(scene, body, name), value, getattr(expected, name), unit)
                 )
-            )
-        if expected.stopping_time is not None:
-            rows.append(
-                (quantity_label(scene, body, "stopping_time"), time, expected.stopping_time, "s")
-            )
     return rows
+
+
+def stopping_rows(run: RunData) -> list[tuple]:
+    return _measured_rows(run, stopping, (("stopping_distance", "m"), ("stopping_time", "s")))
 
 
 def _stop(t: np.ndarray, speed: np.ndarray) -> tuple[int, float]:
@@ -121,11 +121,9 @@ def spin(run: RunData, body_index: int) -> tuple[float, float]:
     s, stop = _stop(a["t"], np.abs(a["w"] @ n) / STOP_SPIN)
     if s < 0:
         return np.nan, np.nan
-    q = a["q"]  # (w, x, y, z): the turn since the start is q q0^-1, its angle about n
-    q0 = q[0] * np.array([1.0, -1.0, -1.0, -1.0])
-    w = q[:, 0] * q0[0] - q[:, 1:] @ q0[1:]
-    axis = q[:, 0, None] * q0[1:] + q0[0] * q[:, 1:] + np.cross(q[:, 1:], q0[1:])
-    turned = np.unwrap(2.0 * np.arctan2(axis @ n, w))
+    q = a["q"]  # (S, 4), scalar first: the turn since the start is q q0^-1, its angle about n
+    turn = np.array(qmul(q.T, quat_conjugate(q[0])))  # (4, S)
+    turned = np.unwrap(2.0 * np.arctan2(n @ turn[1:], turn[0]))
     return float(sign * turned[s]), stop
 
 
@@ -142,19 +140,7 @@ def spin_rate(traj: Trajectory, scene: Scene, body_index: int = 0) -> pd.DataFra
 
 
 def spin_rows(run: RunData) -> list[tuple]:
-    scene, expected = run.scene, run.scene.expected
-    if not _states_a_spin(scene):
-        return []
-    rows = []
-    for k, body in enumerate(scene.bodies):
-        angle, time = spin(run, k)
-        if expected.spin_angle is not None:
-            rows.append(
-                (quantity_label(scene, body, "spin_angle"), angle, expected.spin_angle, "rad")
-            )
-        if expected.spin_time is not None:
-            rows.append((quantity_label(scene, body, "spin_time"), time, expected.spin_time, "s"))
-    return rows
+    return _measured_rows(run, spin, (("spin_angle", "rad"), ("spin_time", "s")))
 
 
 def _without(vector, unit) -> np.ndarray:
