@@ -8,7 +8,9 @@ go round-robin over the engines/integrators, each round starting one further alo
 machine load during the bench falls on all of them alike (`comparators.timing`). steps/s is
 the median over the repeats of steps / wall_s, with the min and max beside it. Each run
 simulates the case's duration capped at BENCH_DURATION_S (10 s: 1000 steps at dt 0.01), or a
-given duration.
+given duration. Beside the speed, what the warm-up run got wrong: its verdict and, where it ran
+the case's whole duration, the closed forms it missed (`comparators.closed_forms`): a fast run
+that misses its physics is not a fast run of the same physics.
 
 `throughput_from_results` makes the same table from a sweep's results (`comparators.sweep`),
 for the report.
@@ -16,6 +18,7 @@ for the report.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -26,9 +29,11 @@ from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsed
 
 from cases.errors import InputError
 from cases.scene import Scene
+from comparators.closed_forms import missed
 from comparators.engine import ENGINES, get_engine, unsupported
 from comparators.engine_output import message_count
 from comparators.limits import STEPS_ENV, check_run, current_limits
+from comparators.outcomes import outcomes
 from comparators.progress import Bar
 from comparators.timing import BENCH_REPEATS, MIN_REPEATS, attempt_run, interleaved, spread
 from comparators.verdict import verdict
@@ -48,6 +53,7 @@ BENCH_COLUMNS = [
     "ratio_vs_mujoco_euler",
     "engine_messages",  # lines the engine printed or warned in the warm-up run (RunMeta.messages)
     "verdict",  # of the warm-up run: "ok", "diverged", ... or "failed: <reason>"
+    "closed_forms_missed",  # of the warm-up run (`closed_forms.missed`); empty where not judged
 ]
 # Every steps/s is compared with MuJoCo's Euler at the same case and dt.
 BASELINE = ("mujoco", "Euler")
@@ -222,8 +228,9 @@ def _bench_block(block: list[BenchRun], repeats: int, advance) -> list[dict]:
 
 
 def _warm_up_block(block: list[BenchRun], rows: list[dict], advance) -> list[int]:
-    """Run every spec of `block` once: its steps, setup_s and verdict into `rows`; the indices
-    of the specs whose run is timed (a verdict in TIMED_VERDICTS)."""
+    """Run every spec of `block` once: its steps, setup_s, verdict and, for a run of its case's
+    whole duration, the closed forms it missed into `rows`; the indices of the specs whose run
+    is timed (a verdict in TIMED_VERDICTS)."""
     timed = []
     for k, spec in enumerate(block):
         traj, error = _attempt(spec)
@@ -236,6 +243,8 @@ def _warm_up_block(block: list[BenchRun], rows: list[dict], advance) -> list[int
         rows[k]["verdict"] = verdict(traj, spec.scene)
         if rows[k]["verdict"] in TIMED_VERDICTS:
             timed.append(k)
+            if math.isclose(spec.duration, spec.scene.duration):  # the case's own run
+                rows[k]["closed_forms_missed"] = missed(outcomes(traj, spec.scene))
     return timed
 
 
@@ -250,10 +259,13 @@ def with_ratio(table: pd.DataFrame) -> pd.DataFrame:
     return table.assign(ratio_vs_mujoco_euler=table["steps_per_s"].to_numpy(float) / reference)
 
 
-def throughput_from_results(results: pd.DataFrame, scenes: dict[str, Scene]) -> pd.DataFrame:
+def throughput_from_results(
+    results: pd.DataFrame, scenes: dict[str, Scene], outcomes: pd.DataFrame
+) -> pd.DataFrame:
     """The bench table (BENCH_COLUMNS) from a sweep's results (`comparators.sweep.RESULT_COLUMNS`)
-    at each case's default dt: its median steps/s, min and max from wall_max_s and wall_min_s,
-    NaN where the run failed or diverged."""
+    and outcomes (`OUTCOMES_COLUMNS`) at each case's default dt: its median steps/s, min and max
+    from wall_max_s and wall_min_s, NaN where the run failed or diverged; the closed forms a
+    timed run of the case's whole duration missed."""
     default = results["dt"].to_numpy(float) == results["case"].map(
         {name: scene.dt for name, scene in scenes.items()}
     ).to_numpy(float)
@@ -276,7 +288,21 @@ def throughput_from_results(results: pd.DataFrame, scenes: dict[str, Scene]) -> 
             "ratio_vs_mujoco_euler": np.nan,
             "engine_messages": runs["engine_messages"],
             "verdict": runs["verdict"],
+            "closed_forms_missed": [
+                _missed_in(outcomes, run, scenes[run.case]) if ok else None
+                for run, ok in zip(runs.itertuples(), valid, strict=True)
+            ],
         },
         columns=BENCH_COLUMNS,
     )
     return with_ratio(table)
+
+
+def _missed_in(outcomes: pd.DataFrame, run, scene: Scene) -> str | None:
+    """`closed_forms.missed` of `run`'s rows of a sweep's `outcomes` (None for a run shorter or
+    longer than its case)."""
+    if not math.isclose(run.duration, scene.duration):
+        return None
+    keys = ("case", "engine", "integrator", "dt")
+    mine = np.logical_and.reduce([outcomes[key] == getattr(run, key) for key in keys])
+    return missed(outcomes[mine])

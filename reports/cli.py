@@ -128,14 +128,21 @@ THROUGHPUT_HEADERS = ("case", "engine", "integrator", "dt", "steps/s [min, max]"
 
 def _throughput_console_table(table, title: str) -> Table:
     """The bench table for the terminal: steps/s median [min, max], the ratio, the lines the
-    engine printed or warned (where any did), the verdict. Nothing is cut short in a narrow
-    terminal: a cell too wide folds onto the next line (cut short, `cube_rain_8` and
-    `cube_rain_1000` both read `cube_rai…`). No vertical rules and one space between columns
-    leave the names whole in 80 columns in most tables."""
+    engine printed or warned (where any did), the verdict and the closed forms missed (where
+    any run was judged). Nothing is cut short in a narrow terminal: a cell too wide folds onto
+    the next line (cut short, `cube_rain_8` and `cube_rain_1000` both read `cube_rai…`). No
+    vertical rules and one space between columns leave the names whole in 80 columns in most
+    tables."""
     said = bool((table["engine_messages"].fillna(0) > 0).any())
+    judged = bool(table["closed_forms_missed"].notna().any())
     shown = Table(title=title, box=box.SIMPLE_HEAD, padding=0, show_edge=False)
-    words = ("case", "engine", "integrator", "verdict")
-    for col in (*THROUGHPUT_HEADERS, *(("messages",) if said else ()), "verdict"):
+    words = ("case", "engine", "integrator", "verdict", "closed forms missed")
+    for col in (
+        *THROUGHPUT_HEADERS,
+        *(("messages",) if said else ()),
+        "verdict",
+        *(("closed forms missed",) if judged else ()),
+    ):
         shown.add_column(
             Text(col),  # Text: "[min, max]" is no markup
             justify="left" if col in words else "right",
@@ -149,7 +156,11 @@ def _throughput_console_table(table, title: str) -> Table:
         cells = [row.case, row.engine, row.integrator, f"{row.dt:g}", rate, ratio]
         if said:
             cells.append(_format_metric(row.engine_messages))
-        shown.add_row(*map(Text, [*cells, row.verdict]))
+        cells.append(row.verdict)
+        if judged:
+            missed = row.closed_forms_missed
+            cells.append(missed if isinstance(missed, str) else "n/a")
+        shown.add_row(*map(Text, cells))
     return shown
 
 

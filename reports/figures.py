@@ -130,7 +130,7 @@ def write_case_figures(
 
 def write_throughput_figure(result: SweepResult, out: Path) -> dict[tuple, Path]:
     """figures/throughput.png by THROUGHPUT_FIGURE; none when no run is at a default dt."""
-    table = throughput_from_results(result.results, result.scenes)
+    table = throughput_from_results(result.results, result.scenes, result.outcomes)
     if table.empty:
         return {}
     title = "stepping throughput at each case's default dt (higher is faster)"

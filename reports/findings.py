@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 
 from cases.scene import Scene
+from comparators.closed_forms import RELATIVE_TOLERANCES, miss
 
 # Verdicts other than "ok" worth a finding, worst first, and how a sentence says each.
 VERDICT_PHRASES = {
@@ -20,29 +21,6 @@ VERDICT_PHRASES = {
     "dissipated": "dissipated (lost energy without contact)",
     "tunnelled": "tunnelled (a body passed through a plane)",
     "jitter": "jitter (never came to rest)",
-}
-# Closed-form outcomes and how far a measurement may sit from its closed form before a reader is
-# told: the rebound ratio within 2 % of e, the stopping distance, the spin-down angle and the slope
-# acceleration within 1 % (the reference simulator's own gates, tests/test_hard_cases.py, which
-# every rigid integrator meets; a zero closed form, as a slope acceleration where the body sticks,
-# is judged by `slides` instead); a resting height within 1 mm and a sliding body's lift off its
-# plane below 1 mm (ten times the 1e-4 m by which soft contacts settle); a creep within 2 mm, the
-# resting gate's limit (gates/physics/resting.toml): a contact that acts on penetration lets the
-# body fall one step first, g dt^2 = 1 mm at resting_cube's dt, and a compliant one settles as much
-# again; its sideways stray from the closed forms' straight line below 1 mm (a tenth of the 1 % the
-# stopping distance is held to on `slide`'s 0.9 m); `slides` (1 or 0) must match.
-RELATIVE_TOLERANCES = {
-    "rebound_ratio": 0.02,
-    "stopping_distance": 0.01,
-    "spin_angle": 0.01,
-    "slope_acceleration": 0.01,
-}
-ABSOLUTE_TOLERANCES = {
-    "rest_com_height": 1e-3,
-    "creep": 2e-3,
-    "lift": 1e-3,
-    "sideways": 1e-3,
-    "slides": 0.5,
 }
 QUANTITY_NAMES = {
     "rebound_ratio": "rebound ratio",
@@ -131,23 +109,14 @@ def verdict_findings(results: pd.DataFrame, scenes: dict[str, Scene]) -> list[Fi
 
 
 def _outcome_miss(row) -> _Item | None:
-    """The item of an outcome row that misses its closed form, None within tolerance."""
-    expected = 0.0 if row.quantity == "creep" else row.expected
-    if pd.isna(row.measured) or pd.isna(expected):
+    """The item of an outcome row that misses its closed form (`closed_forms.miss`), None
+    within tolerance."""
+    value = miss(row.quantity, float(row.measured), float(row.expected))
+    if value is None:
         return None
-    if row.quantity in RELATIVE_TOLERANCES:
-        if expected == 0:
-            return None
-        value = row.measured / expected - 1
-        if abs(value) <= RELATIVE_TOLERANCES[row.quantity]:
-            return None
-        tolerance = RELATIVE_TOLERANCES[row.quantity] * expected**2
-        squared = row.quantity == "rebound_ratio" and abs(row.measured - expected**2) <= tolerance
-        return _Item(row.engine, row.integrator, row.case, value, squared)
-    value = row.measured - expected
-    if abs(value) <= ABSOLUTE_TOLERANCES[row.quantity]:
-        return None
-    return _Item(row.engine, row.integrator, row.case, value)
+    tolerance = RELATIVE_TOLERANCES.get(row.quantity, 0.0) * row.expected**2
+    squared = row.quantity == "rebound_ratio" and abs(row.measured - row.expected**2) <= tolerance
+    return _Item(row.engine, row.integrator, row.case, value, squared)
 
 
 def outcome_findings(

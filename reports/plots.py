@@ -24,13 +24,13 @@ from matplotlib.patches import Patch
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
 from cases.scene import Scene
+from comparators.closed_forms import ABSOLUTE_TOLERANCES
 from comparators.engine import ENGINES
 from comparators.metrics import conserved_quantities
 from comparators.scaling import FASTEST, scaling_rows
 from comparators.sliding import path_on_line, spin_rate
 from comparators.trajectory import Trajectory, atomic_path
 from reports.convergence import ERROR_CEILING_DEG, ERROR_FLOOR_DEG, pareto_front
-from reports.findings import ABSOLUTE_TOLERANCES
 
 WIDTH_IN, DPI = 8.0, 100  # 800 px wide
 ENGINE_COLOURS = matplotlib.colormaps["tab10"].colors

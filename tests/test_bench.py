@@ -10,6 +10,7 @@ import pytest
 from cases import CATALOG
 from comparators import ENGINES
 from comparators.bench import BENCH_COLUMNS, MIN_REPEATS, bench
+from comparators.closed_forms import NONE_MISSED
 from comparators.sweep import warm_up
 from comparators.trajectory import Trajectory
 from reports.cli import main
@@ -18,6 +19,7 @@ SCENE = CATALOG["free_spin_cube"]
 DTS = (0.01, 0.02)
 DURATION = 0.2  # s: 10 to 20 steps per run, enough to exercise every path
 AVAILABLE = [name for name, engine in ENGINES.items() if not engine.missing]
+RIGID = [i for i in ENGINES["reference"].integrators if i != "seed"]
 
 
 @pytest.fixture(scope="module")
@@ -59,6 +61,34 @@ def test_ratio_is_against_mujoco_euler_at_the_same_dt(table):
         at = table[table["dt"] == dt]
         euler = base.loc[base["dt"] == dt, "steps_per_s"].iloc[0]
         np.testing.assert_allclose(at["ratio_vs_mujoco_euler"], at["steps_per_s"] / euler)
+
+
+# A slide cut short once stopped (0.61 s), run whole by the bench: its closed forms are judged.
+SLIDE = dataclasses.replace(CATALOG["slide"], duration=0.8)
+# The same slide told it stops 10 % short of v0^2 / (2 mu g): every rigid integrator misses that.
+SHORT = 0.9
+
+
+def test_closed_forms_are_judged_on_the_case_whole_run(table):
+    # free_spin_cube cut to DURATION: not its case's run, nothing judged
+    assert table["closed_forms_missed"].isna().all()
+    told = SLIDE.expected.stopping_distance
+    wrong = dataclasses.replace(
+        SLIDE,
+        name="slide_told_short",
+        expected=dataclasses.replace(SLIDE.expected, stopping_distance=SHORT * told),
+    )
+    judged = bench([SLIDE, wrong], ["reference"], None, None, progress=False)
+    judged = judged.set_index(["case", "integrator"])
+    assert judged.loc[("slide", "seed"), "verdict"] == "diverged"
+    assert pd.isna(judged.loc[("slide", "seed"), "closed_forms_missed"])
+    for integrator in RIGID:
+        assert judged.loc[(SLIDE.name, integrator), "closed_forms_missed"] == NONE_MISSED
+        missed = judged.loc[(wrong.name, integrator), "closed_forms_missed"]
+        quantity, value = missed.split()
+        # measured within 1 % of the true distance, against a closed form SHORT of it
+        assert quantity == "stopping_distance", missed
+        assert 0.99 / SHORT - 1 <= float(value.rstrip("%")) / 100 <= 1.01 / SHORT - 1, missed
 
 
 class _Poisoned:

@@ -11,16 +11,12 @@ import pandas as pd
 import pytest
 
 from cases.catalog import CATALOG
+from comparators.closed_forms import ABSOLUTE_TOLERANCES, RELATIVE_TOLERANCES
 from comparators.sweep import RESULT_COLUMNS, SweepResult
 from comparators.verdict import ENERGY_LOSS_LIMIT
 from gates import PHYSICS_DIR
 from gates.spec import is_outcome_measure, load_gates, measure_parts
-from reports.findings import (
-    ABSOLUTE_TOLERANCES,
-    ENERGY_DRIFT_NOTE,
-    RELATIVE_TOLERANCES,
-    findings,
-)
+from reports.findings import ENERGY_DRIFT_NOTE, findings
 from reports.sections.summary import summary_section
 
 CASES = ("tumbling_box", "bounce", "slide")

@@ -346,7 +346,7 @@ def test_report_text(sweep, report):
 def test_throughput_at_the_default_dt(sweep, report):
     """The sweep's own timings as the bench's table: one row per engine/integrator at the
     case's default dt, min <= median <= max, the MuJoCo Euler ratio 1; and as a section."""
-    table = throughput_from_results(sweep.results, sweep.scenes)
+    table = throughput_from_results(sweep.results, sweep.scenes, sweep.outcomes)
     assert list(table.columns) == BENCH_COLUMNS
     assert len(table) == len(PAIRS) and (table["dt"] == SCENE.dt).all()
     rate = table["steps_per_s"]

@@ -84,7 +84,7 @@ def _throughput_table(table: pd.DataFrame) -> str:
 
 def throughput_section(result: SweepResult, figures: dict, out: Path) -> list[str]:
     """Steps/s per case at its default dt and engine/integrator, with the ratio to BASELINE."""
-    table = throughput_from_results(result.results, result.scenes)
+    table = throughput_from_results(result.results, result.scenes, result.outcomes)
     how = texts.throughput(*BASELINE)
     if table.empty:
         return section("Throughput", how, "No run at a case's default dt.")
