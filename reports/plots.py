@@ -24,7 +24,7 @@ from matplotlib.patches import Patch
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
 from cases.scene import Scene
-from comparators.closed_forms import ABSOLUTE_TOLERANCES
+from comparators.closed_forms import ABSOLUTE_TOLERANCES, NONE_MISSED
 from comparators.engine import ENGINES
 from comparators.metrics import conserved_quantities
 from comparators.scaling import FASTEST, scaling_rows
@@ -368,8 +368,9 @@ NOTE_WIDTH = 120  # characters per line of 7-point text across the 800 px figure
 def plot_throughput(table: pd.DataFrame, path: Path, title: str | None = None) -> Path:
     """Steps/s (log x, median with a [min, max] bar) and its ratio to MuJoCo Euler (log x, 1
     marked) per case (rows, and dt when several) and engine/integrator (markers, offset within
-    a row), from a throughput table (`comparators.bench.BENCH_COLUMNS`). Runs without a
-    timing are left out and listed under the figure."""
+    a row), from a throughput table (`comparators.bench.BENCH_COLUMNS`). A run whose physics
+    is wrong (`wrong_physics`) has a hollow marker. Runs without a timing are left out and
+    listed under the figure."""
     rows = list(dict.fromkeys(zip(table["case"], table["dt"], strict=True)))
     several_dt = table.groupby("case")["dt"].nunique().max() > 1
     labels = [f"{case} (dt {dt:g})" if several_dt else case for case, dt in rows]
@@ -395,6 +396,10 @@ def plot_throughput(table: pd.DataFrame, path: Path, title: str | None = None) -
         label = f"{engine} {integrator}"
         ax_rate.errorbar(rate, y, xerr=(low, high), label=label, elinewidth=0.8, **style)
         ax_ratio.plot(own["ratio_vs_mujoco_euler"], y, **style)
+        wrong = wrong_physics(own)
+        hollow = style | {"markerfacecolor": "white", "zorder": 3}  # over the filled one
+        ax_rate.plot(rate[wrong], y[wrong], **hollow)
+        ax_ratio.plot(own["ratio_vs_mujoco_euler"][wrong], y[wrong], **hollow)
     ax_ratio.axvline(1.0, color="grey", linewidth=0.8, linestyle="--")
     for ax, column in ((ax_rate, "steps_per_s"), (ax_ratio, "ratio_vs_mujoco_euler")):
         ax.set_xscale("log")
@@ -411,13 +416,23 @@ def plot_throughput(table: pd.DataFrame, path: Path, title: str | None = None) -
     ax_ratio.set_xlabel("ratio to MuJoCo Euler\n(same case and dt)")
     fig.suptitle(title or "stepping throughput (higher is faster)", fontsize=10)
     untimed = table[~np.isfinite(table["steps_per_s"].to_numpy(float))]
-    note = {}
+    notes = []
+    if wrong_physics(timed).any():
+        notes.append("hollow: the run's physics is wrong (its verdict, or a closed form missed)")
     if len(untimed):
         listed = ", ".join(f"{r.case} {r.engine} {r.integrator}" for r in untimed.itertuples())
-        text = textwrap.fill(f"not timed (failed or diverged): {listed}", NOTE_WIDTH)
-        note = {"title": text, "title_fontsize": 7}
+        notes.append(textwrap.fill(f"not timed (failed or diverged): {listed}", NOTE_WIDTH))
+    note = {"title": "\n".join(notes), "title_fontsize": 7} if notes else {}
     _legend_below(fig, ncols=4, **note)
     return _save(fig, path)
+
+
+def wrong_physics(table: pd.DataFrame) -> np.ndarray:
+    """Per row of a throughput table, whether its run got the physics wrong: a verdict other
+    than ok, or a closed form missed (`closed_forms_missed` neither empty nor NONE_MISSED)."""
+    missed = table["closed_forms_missed"]
+    said = missed.notna() & (missed != NONE_MISSED)
+    return ((table["verdict"] != "ok") | said).to_numpy(bool)
 
 
 def plot_scaling(table: pd.DataFrame, path: Path) -> Path | None:

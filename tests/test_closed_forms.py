@@ -1,4 +1,5 @@
-"""`comparators.closed_forms`: which measurements miss their closed form, and how a miss is said."""
+"""`comparators.closed_forms`: which measurements miss their closed form, how a miss is said, and
+the throughput figure's mark of a run whose physics is wrong."""
 
 import math
 
@@ -12,6 +13,7 @@ from comparators.closed_forms import (
     miss,
     missed,
 )
+from reports.plots import wrong_physics
 
 
 @pytest.mark.parametrize("quantity", sorted(RELATIVE_TOLERANCES))
@@ -48,3 +50,13 @@ def test_a_run_says_each_miss_or_none():
     assert said == "slope_acceleration +5.6%; lift +0.087 m"
     assert missed(_outcomes(("jitter_rms", 1.0, 0.0, "m/s"))) is None  # nothing judged
     assert missed(_outcomes()) is None
+
+
+def test_the_throughput_figure_hollows_runs_whose_physics_is_wrong():
+    table = pd.DataFrame(
+        {
+            "verdict": ["ok", "ok", "ok", "jitter"],
+            "closed_forms_missed": [NONE_MISSED, None, "lift +0.1 m", NONE_MISSED],
+        }
+    )
+    assert wrong_physics(table).tolist() == [False, False, True, True]
