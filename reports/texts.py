@@ -107,7 +107,9 @@ def throughput(engine: str, integrator: str) -> str:
         "How to read: per case at its default dt (rows) and engine/integrator (columns), steps "
         "per second of stepping from this sweep's timings (medians, measured as above; higher "
         f"is faster), in parentheses its ratio to {engine} {integrator} on the same case and dt; "
-        "the figure adds each run's [min, max] over its repeats. Runs went through the "
+        "the figure adds each run's [min, max] over its repeats, and draws hollow a run whose "
+        "physics is wrong (a verdict other than ok, or a closed form missed: the speed of "
+        "other physics). Runs went through the "
         "executor's workers, which share the machine; `rigidbench bench` times the same side "
         "by side in one process, at least 5 repeats each."
     )
