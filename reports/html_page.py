@@ -12,6 +12,10 @@ from urllib.parse import unquote, urlparse
 import markdown
 
 from reports.plots import VERDICT_COLOURS
+from reports.sections.summary import OFF
+
+# The summary's "off" (ok, but a closed form missed): amber, apart from every verdict's colour.
+OFF_COLOUR = "#ffd54f"
 
 CSS = """
 body { font-family: system-ui, sans-serif; max-width: 76rem; margin: 2rem auto; padding: 0 1rem;
@@ -39,6 +43,7 @@ def _verdict_css() -> str:
         text = "white" if verdict in ("diverged", "dissipated", "failed") else "#222"
         name = verdict.replace(" ", "-")
         rules.append(f".verdict-{name} {{ background: {colour}; color: {text}; }}")
+    rules.append(f".verdict-{OFF} {{ background: {OFF_COLOUR}; color: #222; }}")
     # the physics gates' pass and fail, as ok and diverged
     rules.append(f".gate-pass {{ background: {VERDICT_COLOURS['ok']}; color: #222; }}")
     rules.append(f".gate-fail {{ background: {VERDICT_COLOURS['diverged']}; color: white; }}")

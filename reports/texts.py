@@ -24,11 +24,14 @@ def data_files(scaling: bool) -> str:
 
 SUMMARY = (
     "Each case (linked to its section) by engine: the verdict of every integrator at the "
-    "case's default dt, and the engine most accurate at equal cost."
+    "case's default dt (off where it missed a closed form), and the engine most accurate at "
+    "equal cost."
 )
 SUMMARY_LEGEND = (
     "How to read: each verdict (ok, diverged, dissipated, tunnelled, jitter, failed) is "
     "defined, with its bound, in [Verdicts](#verdicts) below. "
+    "off: the verdict is ok, but a closed form is missed by more than its tolerance (the "
+    "findings below say which and by how much). "
     "Where an engine's integrators differ, each verdict names its integrators. Most accurate at "
     "equal cost: the engine with the smallest orientation error at the most time budgets of "
     "the case's work-precision plot (at how many, of how many); – where fewer than two "

@@ -196,6 +196,22 @@ def test_the_summary_shows_verdicts_and_findings():
     assert "- **mujoco** Euler: diverged at the default dt ([bounce](#case-bounce))" in text
 
 
+def test_the_summary_shows_a_run_off_its_closed_form():
+    results, outcomes, fits = right_sweep()
+    miss = 3 * RELATIVE_TOLERANCES["stopping_distance"]
+    outcomes.loc[at(outcomes, "slide", "mujoco", "Euler"), "measured"] = 0.9 * (1 + miss)
+    # at another dt a miss is not the summary's
+    outcomes.loc[at(outcomes, "slide", "mujoco", "RK4", 2.0), "measured"] = 0.9 * (1 + miss)
+    text = "\n".join(summary_section(_result(results, outcomes), fits))
+    row = next(line for line in text.splitlines() if line.startswith("| [slide](#case-slide)"))
+    assert 'verdict-off">off</span> Euler; <span class="verdict verdict-ok">ok</span> RK4' in row
+    # a run whose verdict is not ok shows its verdict, not its closed forms
+    results.loc[at(results, "slide", "mujoco", "Euler"), "verdict"] = "jitter"
+    text = "\n".join(summary_section(_result(results, outcomes), fits))
+    row = next(line for line in text.splitlines() if line.startswith("| [slide](#case-slide)"))
+    assert "verdict-off" not in row and 'verdict-jitter">jitter</span> Euler' in row
+
+
 def test_the_summary_shows_no_number_where_nothing_was_measured():
     results, outcomes, fits = right_sweep()
     outcomes.loc[at(outcomes, "slide", "mujoco", "RK4"), "measured"] = np.nan  # never stops

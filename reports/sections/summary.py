@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import pandas as pd
 
+from comparators.closed_forms import NONE_MISSED, missed
 from comparators.engine import ENGINES
 from comparators.sweep import SweepResult
 from reports import plots, texts
@@ -28,6 +29,10 @@ HEADLINE_QUANTITIES = (
 )
 
 
+# The summary's state of a run whose verdict is ok but which misses a closed form.
+OFF = "off"
+
+
 def verdict_badge(verdict: str) -> str:
     """The verdict as a word in a span the page colours (`reports.html_page`); "failed: ..." as
     "failed"."""
@@ -36,23 +41,37 @@ def verdict_badge(verdict: str) -> str:
 
 
 def _verdict_cell(runs: pd.DataFrame) -> str:
-    """One engine's runs on one case: its integrators grouped by verdict ("ok" alone when all
-    are), in the engine's integrator order."""
+    """One engine's runs on one case (with their `shown` state, `_shown_states`): its
+    integrators grouped by state ("ok" alone when all are), in the engine's integrator order."""
     pairs = list(zip(runs["engine"], runs["integrator"], strict=True))
     runs = runs.iloc[sorted(range(len(runs)), key=lambda k: plots.pair_rank(pairs[k]))]
-    verdicts = runs["verdict"].map(lambda v: "failed" if v.startswith("failed") else v)
-    if verdicts.nunique() == 1:
-        return verdict_badge(verdicts.iloc[0])
-    groups = dict.fromkeys(verdicts)
+    states = runs["shown"]
+    if states.nunique() == 1:
+        return verdict_badge(states.iloc[0])
+    groups = dict.fromkeys(states)
     return "; ".join(
-        f"{verdict_badge(v)} {', '.join(runs['integrator'][verdicts == v])}" for v in groups
+        f"{verdict_badge(v)} {', '.join(runs['integrator'][states == v])}" for v in groups
     )
+
+
+def _shown_states(runs: pd.DataFrame, outcomes: pd.DataFrame) -> pd.Series:
+    """Per run, what the summary shows: its verdict ("failed: ..." as "failed"), or OFF where
+    the verdict is ok and a closed form is missed (`closed_forms.missed`, its `outcomes` rows)."""
+    keys = ["case", "engine", "integrator", "dt"]
+    said = {run: missed(own) for run, own in outcomes.groupby(keys, sort=False) if len(own)}
+    verdicts = runs["verdict"].map(lambda v: "failed" if v.startswith("failed") else v)
+    off = [
+        verdict == "ok" and said.get(tuple(run)) not in (None, NONE_MISSED)
+        for verdict, run in zip(verdicts, runs[keys].itertuples(index=False), strict=True)
+    ]
+    return verdicts.mask(off, OFF)
 
 
 def verdict_table(result: SweepResult) -> pd.DataFrame:
     """Cases (rows, linked to their sections) by engine (columns, registry order):
     `_verdict_cell` at the case's default dt; then the engine most accurate at equal cost."""
     runs = at_default_dt(result.results, result.scenes)
+    runs = runs.assign(shown=_shown_states(runs, result.outcomes))
     engines = sorted(runs["engine"].unique(), key=lambda e: plots.pair_rank((e, "")))
     rows = []
     for case in result.scenes:
