@@ -29,7 +29,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsed
 
 from cases.errors import InputError
 from cases.scene import Scene
-from comparators.closed_forms import missed
+from comparators.closed_forms import RUN_KEYS, missed, missed_by_run
 from comparators.engine import ENGINES, get_engine, unsupported
 from comparators.engine_output import message_count
 from comparators.limits import STEPS_ENV, check_run, current_limits
@@ -271,6 +271,10 @@ def throughput_from_results(
     ).to_numpy(float)
     runs = results[default].reset_index(drop=True)
     valid = runs["verdict"].isin(TIMED_VERDICTS).to_numpy()
+    said = missed_by_run(outcomes)
+    keys = list(runs[RUN_KEYS].itertuples(index=False, name=None))
+    whole = runs["case"].map({name: scene.duration for name, scene in scenes.items()})
+    judged = valid & np.isclose(runs["duration"].to_numpy(float), whole.to_numpy(float))
     steps = runs["steps"].to_numpy(float)
     table = pd.DataFrame(
         {
@@ -289,20 +293,9 @@ def throughput_from_results(
             "engine_messages": runs["engine_messages"],
             "verdict": runs["verdict"],
             "closed_forms_missed": [
-                _missed_in(outcomes, run, scenes[run.case]) if ok else None
-                for run, ok in zip(runs.itertuples(), valid, strict=True)
+                said.get(key) if judge else None for key, judge in zip(keys, judged, strict=True)
             ],
         },
         columns=BENCH_COLUMNS,
     )
     return with_ratio(table)
-
-
-def _missed_in(outcomes: pd.DataFrame, run, scene: Scene) -> str | None:
-    """`closed_forms.missed` of `run`'s rows of a sweep's `outcomes` (None for a run shorter or
-    longer than its case)."""
-    if not math.isclose(run.duration, scene.duration):
-        return None
-    keys = ("case", "engine", "integrator", "dt")
-    mine = np.logical_and.reduce([outcomes[key] == getattr(run, key) for key in keys])
-    return missed(outcomes[mine])

@@ -75,3 +75,17 @@ def missed(outcomes: pd.DataFrame) -> str | None:
         else:
             said.append(f"{row.quantity} {value:+.2g} {row.unit}")
     return "; ".join(said) or NONE_MISSED
+
+
+# A sweep's run, as its outcomes table (`comparators.sweep.OUTCOMES_COLUMNS`) keys it.
+RUN_KEYS = ["case", "engine", "integrator", "dt"]
+
+
+def missed_by_run(outcomes: pd.DataFrame) -> dict[tuple, str | None]:
+    """`missed` of every run of a sweep's outcomes table, by its RUN_KEYS values."""
+    return {run: missed(own) for run, own in outcomes.groupby(RUN_KEYS, sort=False)}
+
+
+def is_miss(said) -> bool:
+    """Whether a `missed` result (or a bench cell read back: NaN for None) names a miss."""
+    return isinstance(said, str) and said != NONE_MISSED

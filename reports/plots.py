@@ -24,7 +24,7 @@ from matplotlib.patches import Patch
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
 from cases.scene import Scene
-from comparators.closed_forms import ABSOLUTE_TOLERANCES, NONE_MISSED
+from comparators.closed_forms import ABSOLUTE_TOLERANCES, is_miss
 from comparators.engine import ENGINES
 from comparators.metrics import conserved_quantities
 from comparators.scaling import FASTEST, scaling_rows
@@ -429,9 +429,8 @@ def plot_throughput(table: pd.DataFrame, path: Path, title: str | None = None) -
 
 def wrong_physics(table: pd.DataFrame) -> np.ndarray:
     """Per row of a throughput table, whether its run got the physics wrong: a verdict other
-    than ok, or a closed form missed (`closed_forms_missed` neither empty nor NONE_MISSED)."""
-    missed = table["closed_forms_missed"]
-    said = missed.notna() & (missed != NONE_MISSED)
+    than ok, or a closed form missed (`closed_forms.is_miss`)."""
+    said = table["closed_forms_missed"].map(is_miss)
     return ((table["verdict"] != "ok") | said).to_numpy(bool)
 
 

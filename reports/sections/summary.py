@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from comparators.closed_forms import NONE_MISSED, missed
+from comparators.closed_forms import RUN_KEYS, is_miss, missed_by_run
 from comparators.engine import ENGINES
 from comparators.sweep import SweepResult
 from reports import plots, texts
@@ -57,12 +57,11 @@ def _verdict_cell(runs: pd.DataFrame) -> str:
 def _shown_states(runs: pd.DataFrame, outcomes: pd.DataFrame) -> pd.Series:
     """Per run, what the summary shows: its verdict ("failed: ..." as "failed"), or OFF where
     the verdict is ok and a closed form is missed (`closed_forms.missed`, its `outcomes` rows)."""
-    keys = ["case", "engine", "integrator", "dt"]
-    said = {run: missed(own) for run, own in outcomes.groupby(keys, sort=False) if len(own)}
+    said = missed_by_run(outcomes)
     verdicts = runs["verdict"].map(lambda v: "failed" if v.startswith("failed") else v)
     off = [
-        verdict == "ok" and said.get(tuple(run)) not in (None, NONE_MISSED)
-        for verdict, run in zip(verdicts, runs[keys].itertuples(index=False), strict=True)
+        verdict == "ok" and is_miss(said.get(tuple(run)))
+        for verdict, run in zip(verdicts, runs[RUN_KEYS].itertuples(index=False), strict=True)
     ]
     return verdicts.mask(off, OFF)
 
