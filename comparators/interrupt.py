@@ -30,6 +30,8 @@ _PR_SET_PDEATHSIG = 1  # linux/prctl.h
 # s from an interrupt Python dropped to SIGINT sent again, for the hook that dropped it to
 # return first; one that lands in a hook again is dropped and sent again.
 RESEND_S = 0.01
+# Source files of Python functions native code calls back into (see `_on_sigint`).
+NATIVE_CALLBACKS = ("llvmlite", os.path.join("numba", "core", "serialize.py"))
 _interrupted = False  # Ctrl-C came within `catching_interrupts`
 _catching = False  # within `catching_interrupts`
 _dropped = False  # its KeyboardInterrupt was dropped by Python and not raised since
@@ -90,10 +92,12 @@ def _resend() -> None:
 def _on_sigint(signum, frame):
     global _interrupted, _dropped
     _interrupted = True
-    # numba's compiler calls back into Python through ctypes (llvmlite's object cache), and an
-    # exception raised in such a callback is printed and dropped: there, only remember it.
+    # Where native code has called back into Python, only remember it (`check` raises it): an
+    # exception raised in numba's compiler's ctypes callbacks (llvmlite's object cache) is
+    # printed and dropped, and one raised while compiled code rebuilds a constant
+    # (`numba.core.serialize._numba_unpickle`) comes out as a SystemError.
     while frame is not None:
-        if "llvmlite" in frame.f_code.co_filename:
+        if any(part in frame.f_code.co_filename for part in NATIVE_CALLBACKS):
             return
         frame = frame.f_back
     _dropped = False  # raised now; `_interrupt_dropped` sets it again if this one is dropped too

@@ -246,3 +246,44 @@ def test_interrupt_dropped_in_a_fork_hook_still_stops_quietly():
     )
     assert done.stdout.strip() == "interrupted", done.stderr
     assert done.stderr == ""
+
+
+# Compiled code calls back into Python to rebuild a constant (`_numba_unpickle`, here called
+# directly, its constant interrupting itself as it is rebuilt); a KeyboardInterrupt raised there
+# comes out of the compiled call as a SystemError with a traceback. Within `catching_interrupts`
+# the callback must finish and `check` raise the interrupt after it.
+INTERRUPTED_IN_A_NUMBA_CALLBACK = """
+import os, pickle, signal
+from numba.core.serialize import _numba_unpickle
+from comparators.interrupt import catching_interrupts, check
+
+def interrupted():
+    os.kill(os.getpid(), signal.SIGINT)
+    for _ in range(10000):  # the handler runs here, under _numba_unpickle
+        pass
+    return "rebuilt"
+
+class Constant:
+    def __reduce__(self):
+        return (interrupted, ())
+
+try:
+    with catching_interrupts():
+        print(_numba_unpickle(0, pickle.dumps(Constant()), b"constant"))
+        check()
+    print("not interrupted")
+except KeyboardInterrupt:
+    print("interrupted")
+"""
+
+
+def test_interrupt_in_a_numba_callback_waits_for_it():
+    done = subprocess.run(
+        [sys.executable, "-c", INTERRUPTED_IN_A_NUMBA_CALLBACK],
+        env=from_sources(),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.stdout.split() == ["rebuilt", "interrupted"], done.stderr
+    assert done.stderr == ""
