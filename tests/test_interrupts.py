@@ -236,14 +236,19 @@ except KeyboardInterrupt:
 """
 
 
-def test_interrupt_dropped_in_a_fork_hook_still_stops_quietly():
-    done = subprocess.run(
-        [sys.executable, "-c", INTERRUPTED_IN_A_FORK_HOOK],
+def _python(script: str) -> subprocess.CompletedProcess:
+    """`script` run by a fresh Python on the project's sources, its output captured."""
+    return subprocess.run(
+        [sys.executable, "-c", script],
         env=from_sources(),
         capture_output=True,
         text=True,
         timeout=60,
     )
+
+
+def test_interrupt_dropped_in_a_fork_hook_still_stops_quietly():
+    done = _python(INTERRUPTED_IN_A_FORK_HOOK)
     assert done.stdout.strip() == "interrupted", done.stderr
     assert done.stderr == ""
 
@@ -278,12 +283,6 @@ except KeyboardInterrupt:
 
 
 def test_interrupt_in_a_numba_callback_waits_for_it():
-    done = subprocess.run(
-        [sys.executable, "-c", INTERRUPTED_IN_A_NUMBA_CALLBACK],
-        env=from_sources(),
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    done = _python(INTERRUPTED_IN_A_NUMBA_CALLBACK)
     assert done.stdout.split() == ["rebuilt", "interrupted"], done.stderr
     assert done.stderr == ""
