@@ -45,7 +45,7 @@ def stopping(run: RunData, body_index: int) -> tuple[float, float]:
     shift = a["x"][s] - a["x"][0]
     plane = support_plane(run.scene)
     if plane is not None:
-        shift = shift - np.dot(shift, plane.unit_normal) * plane.unit_normal
+        shift = _in_plane(shift, plane)
     return float(np.linalg.norm(shift)), stop
 
 

@@ -203,12 +203,9 @@ def plot_path(
         ax.axvline(stop, color="0.3", linestyle=":", label=f"closed form: stops at {stop:g} m")
     for label, style, found in lines:
         ax.plot(found["along"], found["across"] * 1e3, label=label, **style)
-    ax.set_xlabel("along the line it should slide on (m)")
-    ax.set_ylabel("across it (mm; + to its left)")
-    ax.grid(True, which="major", alpha=0.3)
-    ax.set_title(f"{scene.name}: centre of mass on its plane, {_at(chosen, scene)}", fontsize=10)
-    _legend_below(fig, ncols=4)
-    return _save(fig, path)
+    ax.set(xlabel="along the line it should slide on (m)", ylabel="across it (mm; + to its left)")
+    title = f"{scene.name}: centre of mass on its plane, {_at(chosen, scene)}"
+    return _finish_lines(fig, ax, title, path)
 
 
 def plot_spin(
@@ -230,10 +227,14 @@ def plot_spin(
         ax.plot(*closed, color="0.3", linestyle=":", label=f"closed form (stops at {stop:.3g} s)")
     for label, style, found in lines:
         ax.plot(found["t"], found["rate"], label=label, **style)
-    ax.set_xlabel("t (s)")
-    ax.set_ylabel("spin about the plane's normal (rad/s)")
+    ax.set(xlabel="t (s)", ylabel="spin about the plane's normal (rad/s)")
+    return _finish_lines(fig, ax, f"{scene.name}: spin against time, {_at(chosen, scene)}", path)
+
+
+def _finish_lines(fig: Figure, ax, title: str, path: Path) -> Path:
+    """The end of every figure of `_body_lines`: grid, `title`, legend below, saved to `path`."""
     ax.grid(True, which="major", alpha=0.3)
-    ax.set_title(f"{scene.name}: spin against time, {_at(chosen, scene)}", fontsize=10)
+    ax.set_title(title, fontsize=10)
     _legend_below(fig, ncols=4)
     return _save(fig, path)
 

@@ -206,14 +206,14 @@ def case_section(
     work_precision = case_figure(figures, case, "work_precision", out, wp_alt)
     stability = case_figure(figures, case, "stability", out, "stability map")
     # only a case with a sliding body's straight line has a path to draw, a spun one's a spin
-    path = []
-    if (case, "path") in figures:
-        path_figure = case_figure(figures, case, "path", out, "path on its plane")
-        path = subsection("Path on its plane", texts.PATH, path_figure)
-    spin = []
-    if (case, "spin") in figures:
-        spin_figure = case_figure(figures, case, "spin", out, "spin against time")
-        spin = subsection("Spin against time", texts.SPIN, spin_figure)
+    sliding = {
+        title: subsection(title, text, case_figure(figures, case, kind, out, title.lower()))
+        for kind, title, text in (
+            ("path", "Path on its plane", texts.PATH),
+            ("spin", "Spin against time", texts.SPIN),
+        )
+        if (case, kind) in figures
+    }
     fit_table = _fit_table(fits[fits["case"] == case])
     # the motion stays outside the fold: a reader sees each core case move without a click
     motion = []
@@ -224,13 +224,11 @@ def case_section(
     detail = [
         *subsection("Metrics", texts.METRICS + solver, _metrics_table(runs)),
         *subsection("Drift over time", texts.DRIFT, drift),
-        *path,
-        *spin,
+        *(line for lines in sliding.values() for line in lines),
         *subsection("Convergence in dt", texts.CONVERGENCE + contact, errors, fit_table),
         *subsection("Work-precision", texts.WORK_PRECISION, work_precision, pareto_sentence(runs)),
         *subsection("Stability map", texts.STABILITY_MAP, stability),
         *case_outcomes(result, case),
     ]
-    shown = (("path on its plane", path), ("spin against time", spin))
-    named = (*CASE_DETAIL[:2], *(name for name, lines in shown if lines), *CASE_DETAIL[2:])
+    named = (*CASE_DETAIL[:2], *(title.lower() for title in sliding), *CASE_DETAIL[2:])
     return [*_intro(result, case), *motion, *folded(", ".join(named), detail)]
