@@ -50,12 +50,28 @@ class Bar(Progress):
             self.console.print(self.make_tasks_table([task]))
 
 
+class Stage:
+    """The spinner of a stage whose text changes as it goes (the run it is on). On a terminal
+    the spinner's text changes in place; in a file or a log each new text is printed as a
+    line, since rich shows no spinner there."""
+
+    def __init__(self, console: Console, status: Status):
+        self._console = console
+        self._status = status
+
+    def update(self, text: str, logged: bool = True) -> None:
+        """`logged=False`: the spinner alone, for updates too many for a log's lines."""
+        self._status.update(text)
+        if logged and not self._console.is_terminal:
+            self._console.print(text, markup=False)
+
+
 @contextmanager
-def stage(console: Console, text: str) -> Iterator[Status]:
+def stage(console: Console, text: str) -> Iterator[Stage]:
     """A spinner saying `text` on a terminal, for a long stage without steps to count (the
-    compile, the scaling measurement); in a file or a log, where rich shows no spinner, `text`
-    once as the stage starts."""
+    compile, a run, the scaling measurement); in a file or a log, `text` once as the stage
+    starts, and each update as a line."""
     if not console.is_terminal:
         console.print(text, markup=False)
     with console.status(text, spinner="dots") as status:
-        yield status
+        yield Stage(console, status)

@@ -200,7 +200,7 @@ def _cmd_run(args, console: Console) -> None:
     output_file(args.out, "--out", (".csv", ".parquet"))
     dt = scene.dt if args.dt is None else args.dt
     check_run(scene, dt, scene.duration if args.duration is None else args.duration)
-    with console.status(f"running {scene.name} on {args.engine}", spinner="dots"):
+    with stage(console, f"running {scene.name} on {args.engine}"):
         try:
             traj = in_child(run, scene, args.engine, args.integrator, args.dt, args.duration)
         except (InputError, ParityError, ContractError):
@@ -287,7 +287,7 @@ def _cmd_animate(args, console: Console) -> None:
         output_dir(args.cache, "--cache") if args.cache is not None else DEFAULT_OUT / "cache"
     )
     runs = []
-    with console.status(f"running {scene.name}", spinner="dots") as status:
+    with stage(console, f"running {scene.name}") as status:
         for engine, integrator in pairs:
             status.update(f"running {scene.name} on {engine} {integrator}")
             traj = _cached_run(scene, engine, integrator, dt, duration, cache)
@@ -361,7 +361,11 @@ def _measure_scaling(args, engines: list[str], console: Console):
     started = time.perf_counter()
     with stage(console, "scaling") as status:
         table = scaling.measure_scaling(
-            counts, engines, windows, progress=lambda label: status.update(f"scaling: {label}")
+            counts,
+            engines,
+            windows,
+            # a label before every repeat of every run: hundreds, too many for a log
+            progress=lambda label: status.update(f"scaling: {label}", logged=False),
         )
     fastest = table[table["series"] == scaling.FASTEST].drop_duplicates(["engine"])
     named = ", ".join(f"{r.engine} {r.integrator}" for r in fastest.itertuples()) or "none"

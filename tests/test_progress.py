@@ -5,7 +5,7 @@ import io
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, TextColumn
 
-from comparators.progress import Bar
+from comparators.progress import Bar, stage
 
 COLUMNS = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn())
 
@@ -46,3 +46,17 @@ def test_the_counts_line_up_however_long_the_description():
 
 def test_a_disabled_bar_prints_nothing():
     assert _logged(25, disable=True) == []
+
+
+def test_a_stage_in_a_log_prints_its_text_and_each_update():
+    """A spinner shows nothing in a log: the stage prints what it is doing instead, as the
+    run and animate commands step from run to run."""
+    out = io.StringIO()
+    with stage(Console(file=out, width=100), "running slide") as status:
+        status.update("running slide on mujoco Euler")
+        status.update("running slide on reference euler")
+    assert out.getvalue().splitlines() == [
+        "running slide",
+        "running slide on mujoco Euler",
+        "running slide on reference euler",
+    ]
