@@ -166,27 +166,11 @@ def get_engine(name: str) -> Engine:
         raise InputError(f"unknown engine {name!r}: expected one of {', '.join(ENGINES)}") from None
 
 
-def run(
-    scene: Scene,
-    engine: str,
-    integrator: str | None = None,
-    dt: float | None = None,
-    duration: float | None = None,
-) -> Trajectory:
-    """Run `scene` on the named engine; None means the engine's or the scene's default.
-
-    Bad names, an unavailable engine (`missing`: its package absent, or a plugin that failed to
-    load), a scene the engine does not model (`unsupported`), and a dt or duration that is not
-    a finite number > 0 or makes the run larger than its limits (`comparators.limits`) raise
-    `InputError`; a result that is not the trajectory table of the scene's
-    bodies raises `ContractError`, and a model that differs from the scene at t = 0
-    `comparators.parity.ParityError`.
-
-    What the engine prints or warns while it runs is captured
-    (`comparators.engine_output.captured_output`, around the engine's whole run, so outside its
-    timed regions) into the trajectory's `RunMeta.messages`; when the run raises, into a note
-    on the exception, which `failure_reason` keeps.
-    """
+def check_engine(scene: Scene, engine: str, integrator: str | None = None) -> tuple[Engine, str]:
+    """The named engine and integrator (None: its default) for `scene`, or `InputError` for
+    an unknown name, an unavailable engine (`missing`: its package absent, or a plugin that
+    failed to load) or a scene the engine does not model (`unsupported`): what `run` checks
+    before it starts, for commands that check before they say they are running."""
     eng = get_engine(engine)
     if eng.missing:
         raise InputError(f"engine {engine!r} is unavailable: {eng.missing}")
@@ -199,6 +183,29 @@ def run(
             f"unknown integrator {integrator!r} for engine {engine!r}: "
             f"expected one of {', '.join(eng.integrators)}"
         )
+    return eng, integrator
+
+
+def run(
+    scene: Scene,
+    engine: str,
+    integrator: str | None = None,
+    dt: float | None = None,
+    duration: float | None = None,
+) -> Trajectory:
+    """Run `scene` on the named engine; None means the engine's or the scene's default.
+
+    What `check_engine` refuses, and a dt or duration that is not a finite number > 0 or makes
+    the run larger than its limits (`comparators.limits`), raise `InputError`; a result that
+    is not the trajectory table of the scene's bodies raises `ContractError`, and a model that
+    differs from the scene at t = 0 `comparators.parity.ParityError`.
+
+    What the engine prints or warns while it runs is captured
+    (`comparators.engine_output.captured_output`, around the engine's whole run, so outside its
+    timed regions) into the trajectory's `RunMeta.messages`; when the run raises, into a note
+    on the exception, which `failure_reason` keeps.
+    """
+    eng, integrator = check_engine(scene, engine, integrator)
     dt = scene.dt if dt is None else dt
     duration = scene.duration if duration is None else duration
     check_run(scene, dt, duration)

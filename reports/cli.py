@@ -32,6 +32,7 @@ from comparators.cache import CacheWarning
 from comparators.engine import (
     ContractError,
     EngineFailure,
+    check_engine,
     failure_reason,
     left_out,
     unsupported,
@@ -199,6 +200,7 @@ def _cmd_run(args, console: Console) -> None:
     scene = resolve_case(args.case)
     output_file(args.out, "--out", (".csv", ".parquet"))
     dt = scene.dt if args.dt is None else args.dt
+    check_engine(scene, args.engine, args.integrator)  # before the stage prints its line
     check_run(scene, dt, scene.duration if args.duration is None else args.duration)
     with stage(console, f"running {scene.name} on {args.engine}"):
         try:
@@ -231,21 +233,11 @@ def _animated_runs(args, scene, console: Console) -> list[tuple[str, str]]:
     if not args.engines:
         _print_left_out(console, [scene], engines)
         engines = [name for name in engines if not unsupported(ENGINES[name], scene)]
-    pairs = []
-    for name in engines:
-        engine = get_engine(name)
-        if engine.missing:
-            raise InputError(f"engine {name!r} is unavailable: {engine.missing}")
-        refusal = unsupported(engine, scene)
-        if refusal:
-            raise InputError(f"engine {name!r} cannot run {scene.name!r}: {refusal}")
-        for integrator in args.integrator or [engine.default_integrator]:
-            if integrator not in engine.integrators:
-                raise InputError(
-                    f"unknown integrator {integrator!r} for engine {name!r}: "
-                    f"expected one of {', '.join(engine.integrators)}"
-                )
-            pairs.append((name, integrator))
+    pairs = [
+        (name, check_engine(scene, name, integrator)[1])
+        for name in engines
+        for integrator in args.integrator or [None]
+    ]
     if not pairs:
         raise InputError(f"no engine here models {scene.name!r}: nothing to animate")
     return pairs

@@ -82,6 +82,8 @@ def test_run_writes_the_trajectory_table(tmp_path, suffix):
         "--dt", "0.01", "--out", str(out),
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr
+    # piped, so no spinner: the stage's line says what ran
+    assert proc.stdout.startswith("running tumbling_box on reference\n")
     assert "angular_momentum_drift" in proc.stdout
     traj = Trajectory.read(out)
     assert list(traj.table.columns) == COLUMNS
