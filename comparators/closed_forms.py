@@ -53,6 +53,16 @@ def miss(quantity: str, measured: float, expected: float) -> float | None:
     return None
 
 
+def tolerance(quantity: str) -> str | None:
+    """How far `quantity` may sit from its closed form, as text: "1%" (relative), "0.001" (in
+    the quantity's unit); None for a quantity judged by neither table."""
+    if quantity in RELATIVE_TOLERANCES:
+        return f"{RELATIVE_TOLERANCES[quantity]:.0%}"
+    if quantity in ABSOLUTE_TOLERANCES:
+        return f"{ABSOLUTE_TOLERANCES[quantity]:g}"
+    return None
+
+
 def judged(outcomes: pd.DataFrame) -> bool:
     """Whether any of one run's outcome rows is a quantity with a tolerance here."""
     tolerances = RELATIVE_TOLERANCES.keys() | ABSOLUTE_TOLERANCES.keys()
@@ -68,13 +78,16 @@ def missed(outcomes: pd.DataFrame) -> str | None:
     said = []
     for row in outcomes.itertuples():
         value = miss(row.quantity, float(row.measured), float(row.expected))
-        if value is None:
-            continue
-        if row.quantity in RELATIVE_TOLERANCES:
-            said.append(f"{row.quantity} {value:+.1%}")
-        else:
-            said.append(f"{row.quantity} {value:+.2g} {row.unit}")
+        if value is not None:
+            said.append(f"{row.quantity} {missed_by(row.quantity, value, row.unit)}")
     return "; ".join(said) or NONE_MISSED
+
+
+def missed_by(quantity: str, value: float, unit: str) -> str:
+    """A `miss` as text: "+1.2%" (relative) or "+0.087 m" (absolute)."""
+    if quantity in RELATIVE_TOLERANCES:
+        return f"{value:+.1%}"
+    return f"{value:+.2g} {unit}".rstrip()
 
 
 # A sweep's run, as its outcomes table (`comparators.sweep.OUTCOMES_COLUMNS`) keys it.

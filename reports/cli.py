@@ -27,7 +27,7 @@ from rich.text import Text
 
 from cases import CATALOG, InputError, resolve_case, scene_to_toml
 from cases.catalog import CUBE_RAIN_MAX, CUBE_RAIN_PREFIX, CUBE_RAIN_REPRESENTATIVE
-from comparators import ENGINES, get_engine, run
+from comparators import ENGINES, closed_forms, get_engine, run
 from comparators.cache import CacheWarning
 from comparators.engine import (
     ContractError,
@@ -40,6 +40,7 @@ from comparators.engine import (
 from comparators.engine_output import terminal_stream
 from comparators.interrupt import EXIT_INTERRUPTED, catching_interrupts, check, in_child
 from comparators.limits import check_run, limits_set
+from comparators.outcomes import outcomes
 from comparators.parity import ParityError
 from comparators.progress import Bar, stage
 from comparators.summary import summarize
@@ -214,14 +215,45 @@ def _cmd_run(args, console: Console) -> None:
     summary = summarize(traj, scene)
     if args.out:
         traj.write(args.out)
-    table = Table(title=f"{scene.name}: {scene.modelled()}", show_header=False)
+    console.print(f"{scene.name}: {scene.modelled()}", markup=False)  # a title would wrap
+    table = Table(show_header=False)
     table.add_column("metric", style="bold")
     table.add_column("value", justify="right")
     for key, value in summary.items():
         table.add_row(key, _format_metric(value))
     console.print(table)
+    if not (said := outcomes(traj, scene)).empty:
+        console.print(_outcomes_table(said))
     if args.out:
         console.print(f"run: wrote {len(traj.table)} rows to {args.out}", markup=False)
+
+
+def _outcomes_table(said) -> Table:
+    """One run's outcomes (`comparators.outcomes`) against their closed forms, each judged by
+    the rule of the report's findings (`comparators.closed_forms`) where it has a tolerance."""
+    table = Table(title="outcomes against their closed forms")
+    numbers = ("measured", "closed form", "tolerance")
+    for header in ("quantity", "unit", *numbers, "judged"):
+        table.add_column(header, justify="right" if header in numbers else "left")
+    for row in said.itertuples():
+        allowed = closed_forms.tolerance(row.quantity)
+        value = closed_forms.miss(row.quantity, row.measured, row.expected)
+        if allowed is None or math.isnan(row.expected) or math.isnan(row.measured):
+            judged = ""
+        elif value is None:
+            judged = "within"
+        else:
+            judged = f"missed by {closed_forms.missed_by(row.quantity, value, row.unit)}"
+        cells = (
+            row.quantity,
+            row.unit,
+            _format_metric(row.measured),
+            _format_metric(row.expected),
+            allowed or "",
+            judged,
+        )
+        table.add_row(*map(Text, cells))
+    return table
 
 
 def _animated_runs(args, scene, console: Console) -> list[tuple[str, str]]:

@@ -1,5 +1,6 @@
 """The rigidbench command line: commands work, bad input exits 2 with one line and no traceback."""
 
+import io
 import os
 import subprocess
 import sys
@@ -7,10 +8,11 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from rich.console import Console
 
 from cases import CATALOG, load_scene
 from comparators import COLUMNS, Trajectory
-from reports.cli import EXIT_BROKEN_PIPE, main
+from reports.cli import EXIT_BROKEN_PIPE, _outcomes_table, main
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -185,3 +187,37 @@ def test_report_bad_input(args, message, tmp_path):
     assert proc.returncode == 2
     assert message in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "out" / "report.md").exists()
+
+
+def test_run_judges_each_outcome_against_its_closed_form(capsys):
+    """`run` prints the outcomes table: the reference's slide stops within 1 % of the closed
+    form; a quantity without a tolerance (stopping_time) is shown but not judged."""
+    assert main(["run", "slide"]) == 0
+    rows = {}
+    for line in capsys.readouterr().out.splitlines():
+        cells = [cell.strip() for cell in line.split("│")[1:-1]]
+        if len(cells) == 6:  # quantity, unit, measured, closed form, tolerance, judged
+            rows[cells[0]] = cells
+    assert rows["stopping_distance"][3:] == ["0.9", "1%", "within"]
+    assert rows["stopping_time"][3:] == ["0.6", "", ""]
+
+
+def test_the_outcomes_table_says_by_how_much_a_run_missed():
+    said = pd.DataFrame(
+        {
+            "quantity": ["stopping_distance", "lift", "flip_period"],
+            "measured": [0.85, 0.073, 6.8],
+            "expected": [0.9, 0.0, 6.84],
+            "error": [-0.05, 0.073, -0.04],
+            "unit": ["m", "m", "s"],
+        }
+    )
+    out = io.StringIO()
+    Console(file=out, width=200).print(_outcomes_table(said))
+    rows = [[c.strip() for c in line.split("│")[1:-1]] for line in out.getvalue().splitlines()]
+    rows = [cells for cells in rows if len(cells) == 6]
+    assert [cells[4:] for cells in rows] == [
+        ["1%", "missed by -5.6%"],
+        ["0.001", "missed by +0.073 m"],
+        ["", ""],
+    ]
