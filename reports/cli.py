@@ -201,11 +201,11 @@ def _cmd_run(args, console: Console) -> None:
     scene = resolve_case(args.case)
     output_file(args.out, "--out", (".csv", ".parquet"))
     dt = scene.dt if args.dt is None else args.dt
-    check_engine(scene, args.engine, args.integrator)  # before the stage prints its line
+    _, integrator = check_engine(scene, args.engine, args.integrator)  # before the stage's line
     check_run(scene, dt, scene.duration if args.duration is None else args.duration)
-    with stage(console, f"running {scene.name} on {args.engine}"):
+    with stage(console, f"running {scene.name} on {args.engine} {integrator}"):
         try:
-            traj = in_child(run, scene, args.engine, args.integrator, args.dt, args.duration)
+            traj = in_child(run, scene, args.engine, integrator, args.dt, args.duration)
         except (InputError, ParityError, ContractError):
             raise
         except Exception as exc:  # the engine's own failure on an accepted scene: one line

@@ -85,7 +85,7 @@ def test_run_writes_the_trajectory_table(tmp_path, suffix):
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     # piped, so no spinner: the stage's line says what ran
-    assert proc.stdout.startswith("running tumbling_box on reference\n")
+    assert proc.stdout.startswith("running tumbling_box on reference splitting\n")
     assert "angular_momentum_drift" in proc.stdout
     traj = Trajectory.read(out)
     assert list(traj.table.columns) == COLUMNS
