@@ -132,11 +132,37 @@ def _leave(signum, frame):
     raise SystemExit(EXIT_INTERRUPTED)
 
 
-def _worker_init(initializer, initargs) -> None:
+class _Mutable:
+    """A pool worker's `sys.stderr`, which drops what is written once the parent has set
+    `muted` (shared memory, set before the workers are sent SIGTERM). A worker whose SIGTERM
+    comes late can meet the pool's broken call queue first: another worker, killed halfway
+    through reading a call, leaves the rest of that call in the pipe, and this worker reads
+    it as the next call (`EOFError: Ran out of input`) and prints its traceback before its own
+    SIGTERM silences it (docs/measurement.md, "Interrupts")."""
+
+    def __init__(self, stream, muted):
+        self._stream = stream
+        self._muted = muted
+
+    def write(self, text: str) -> int:
+        return len(text) if self._muted.value else self._stream.write(text)
+
+    def flush(self) -> None:
+        if not self._muted.value:
+            self._stream.flush()
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+def _worker_init(initializer, initargs, muted=None) -> None:
     """Runs first in every worker: the parent handles Ctrl-C; SIGTERM unwinds (finally blocks
-    and `atomic_path` clean up); the worker dies with its parent."""
+    and `atomic_path` clean up); the worker dies with its parent; a pool's worker writes to
+    stderr until the pool's `muted` is set (`_Mutable`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _leave)
+    if muted is not None:
+        sys.stderr = _Mutable(sys.stderr, muted)
     die_with_parent()
     if initializer is not None:
         initializer(*initargs)
@@ -145,16 +171,20 @@ def _worker_init(initializer, initargs) -> None:
 @contextmanager
 def worker_pool(jobs: int, initializer=None, initargs=()):
     """A fork `ProcessPoolExecutor` of `jobs` workers as described above; on leaving the block
-    by an exception its workers are stopped without waiting for their tasks."""
+    by an exception its workers are muted (`_Mutable`) and stopped without waiting for their
+    tasks."""
+    context = multiprocessing.get_context("fork")
+    muted = context.RawValue(ctypes.c_bool, False)
     pool = ProcessPoolExecutor(
         max_workers=jobs,
-        mp_context=multiprocessing.get_context("fork"),
+        mp_context=context,
         initializer=_worker_init,
-        initargs=(initializer, initargs),
+        initargs=(initializer, initargs, muted),
     )
     try:
         yield pool
     except BaseException:
+        muted.value = True
         stop_pool(pool)
         raise
     pool.shutdown(wait=True)
@@ -163,8 +193,7 @@ def worker_pool(jobs: int, initializer=None, initargs=()):
 def stop_pool(pool: ProcessPoolExecutor) -> None:
     """End `pool`'s workers now and cancel its queued work (`stop_processes`). SIGTERM goes
     first, so that each worker has silenced its stderr (`_leave`) before the shutdown closes
-    the queues it may be reading. A worker still prints an EOFError traceback from its call
-    queue now and then (docs/measurement.md, "Interrupts")."""
+    the queues it may be reading."""
     processes = list((pool._processes or {}).values())  # no public accessor for the workers
     manager = pool._executor_manager_thread
     _terminate(processes)

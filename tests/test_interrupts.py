@@ -286,3 +286,36 @@ def test_interrupt_in_a_numba_callback_waits_for_it():
     done = _python(INTERRUPTED_IN_A_NUMBA_CALLBACK)
     assert done.stdout.split() == ["rebuilt", "interrupted"], done.stderr
     assert done.stderr == ""
+
+
+# A pool worker whose SIGTERM comes late (here: blocked, then taken by sigwaitinfo) and which
+# writes to stderr meanwhile, as one that reads the broken call queue of a stopped pool prints
+# its EOFError (docs/measurement.md, "Interrupts"). Muted before the workers are sent SIGTERM,
+# the pool's workers write nothing once it stops.
+WRITTEN_AFTER_THE_STOP = """
+import multiprocessing, signal, sys
+from comparators.interrupt import worker_pool
+
+started = multiprocessing.get_context("fork").Event()
+
+def late_writer():
+    signal.pthread_sigmask(signal.SIG_BLOCK, [signal.SIGTERM])
+    started.set()
+    signal.sigwaitinfo([signal.SIGTERM])  # the parent is stopping the pool
+    sys.stderr.write("written after the stop\\n")
+    sys.stderr.flush()
+
+try:
+    with worker_pool(1) as pool:
+        pool.submit(late_writer)
+        started.wait(30)
+        raise KeyboardInterrupt
+except KeyboardInterrupt:
+    print("stopped")
+"""
+
+
+def test_a_stopped_pools_workers_write_nothing_to_stderr():
+    done = _python(WRITTEN_AFTER_THE_STOP)
+    assert done.stdout.split() == ["stopped"], done.stderr
+    assert done.stderr == ""
