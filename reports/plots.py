@@ -398,7 +398,8 @@ def plot_throughput(table: pd.DataFrame, path: Path, title: str | None = None) -
         ax_rate.errorbar(rate, y, xerr=(low, high), label=label, elinewidth=0.8, **style)
         ax_ratio.plot(own["ratio_vs_mujoco_euler"], y, **style)
         wrong = wrong_physics(own)
-        hollow = style | {"markerfacecolor": "white", "zorder": 3}  # over the filled one
+        # over the filled one, and larger: a hollow star or triangle of size 4 reads as filled
+        hollow = style | {"markerfacecolor": "white", "markersize": 6, "zorder": 3}
         ax_rate.plot(rate[wrong], y[wrong], **hollow)
         ax_ratio.plot(own["ratio_vs_mujoco_euler"][wrong], y[wrong], **hollow)
     ax_ratio.axvline(1.0, color="grey", linewidth=0.8, linestyle="--")
