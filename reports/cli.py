@@ -14,20 +14,18 @@ the terminal and out of the run's record.
 
 from __future__ import annotations
 
-import math
 import sys
 import time
 import warnings
 from pathlib import Path
 
-from rich import box
 from rich.console import Console
 from rich.table import Table
 from rich.text import Text
 
 from cases import CATALOG, InputError, resolve_case, scene_to_toml
 from cases.catalog import CUBE_RAIN_MAX, CUBE_RAIN_PREFIX, CUBE_RAIN_REPRESENTATIVE
-from comparators import ENGINES, closed_forms, get_engine, run
+from comparators import ENGINES, get_engine, run
 from comparators.cache import CacheWarning
 from comparators.engine import (
     ContractError,
@@ -45,6 +43,7 @@ from comparators.parity import ParityError
 from comparators.progress import Bar, stage
 from comparators.summary import summarize
 from comparators.trajectory import atomic_path
+from reports import console_tables
 from reports.arguments import build_parser, one_line
 from reports.outputs import output_dir, output_file
 from reports.terminal import console_on, to_nowhere
@@ -112,60 +111,6 @@ def _print_left_out(console: Console, scenes: list, engines: list[str]) -> list[
     return lines
 
 
-def _format_metric(value) -> str:
-    """A metric for the terminal: 4 significant digits, small values in scientific notation."""
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "n/a"
-        return f"{value:.4g}" if abs(value) >= 1e-3 or value == 0 else f"{value:.3e}"
-    return str(value)
-
-
-def _format_rate(value: float) -> str:
-    return "n/a" if math.isnan(value) else f"{value:.3g}"
-
-
-THROUGHPUT_HEADERS = ("case", "engine", "integrator", "dt", "steps/s [min, max]", "vs MuJoCo Euler")
-
-
-def _throughput_console_table(table, title: str) -> Table:
-    """The bench table for the terminal: steps/s median [min, max], the ratio, the lines the
-    engine printed or warned (where any did), the verdict and the closed forms missed (where
-    any run was judged). Nothing is cut short in a narrow terminal: a cell too wide folds onto
-    the next line (cut short, `cube_rain_8` and `cube_rain_1000` both read `cube_rai…`). No
-    vertical rules and one space between columns leave the names whole in 80 columns in most
-    tables."""
-    said = bool((table["engine_messages"].fillna(0) > 0).any())
-    judged = bool(table["closed_forms_missed"].notna().any())
-    shown = Table(title=title, box=box.SIMPLE_HEAD, padding=0, show_edge=False)
-    words = ("case", "engine", "integrator", "verdict", "closed forms missed")
-    for col in (
-        *THROUGHPUT_HEADERS,
-        *(("messages",) if said else ()),
-        "verdict",
-        *(("closed forms missed",) if judged else ()),
-    ):
-        shown.add_column(
-            Text(col),  # Text: "[min, max]" is no markup
-            justify="left" if col in words else "right",
-            overflow="fold",
-        )
-    for row in table.itertuples():
-        rate = _format_rate(row.steps_per_s)
-        if not math.isnan(row.steps_per_s):
-            rate += f" [{_format_rate(row.steps_per_s_min)}, {_format_rate(row.steps_per_s_max)}]"
-        ratio = _format_rate(row.ratio_vs_mujoco_euler)
-        cells = [row.case, row.engine, row.integrator, f"{row.dt:g}", rate, ratio]
-        if said:
-            cells.append(_format_metric(row.engine_messages))
-        cells.append(row.verdict)
-        if judged:
-            missed = row.closed_forms_missed
-            cells.append(missed if isinstance(missed, str) else "n/a")
-        shown.add_row(*map(Text, cells))
-    return shown
-
-
 # ---- the commands ----------------------------------------------------------------------------
 
 
@@ -216,44 +161,11 @@ def _cmd_run(args, console: Console) -> None:
     if args.out:
         traj.write(args.out)
     console.print(f"{scene.name}: {scene.modelled()}", markup=False)  # a title would wrap
-    table = Table(show_header=False)
-    table.add_column("metric", style="bold")
-    table.add_column("value", justify="right")
-    for key, value in summary.items():
-        table.add_row(key, _format_metric(value))
-    console.print(table)
+    console.print(console_tables.metrics_table(summary))
     if not (said := outcomes(traj, scene)).empty:
-        console.print(_outcomes_table(said))
+        console.print(console_tables.outcomes_table(said))
     if args.out:
         console.print(f"run: wrote {len(traj.table)} rows to {args.out}", markup=False)
-
-
-def _outcomes_table(said) -> Table:
-    """One run's outcomes (`comparators.outcomes`) against their closed forms, each judged by
-    the rule of the report's findings (`comparators.closed_forms`) where it has a tolerance."""
-    table = Table(title="outcomes against their closed forms")
-    numbers = ("measured", "closed form", "tolerance")
-    for header in ("quantity", "unit", *numbers, "judged"):
-        table.add_column(header, justify="right" if header in numbers else "left")
-    for row in said.itertuples():
-        allowed = closed_forms.tolerance(row.quantity)
-        value = closed_forms.miss(row.quantity, row.measured, row.expected)
-        if allowed is None or math.isnan(row.expected) or math.isnan(row.measured):
-            judged = ""
-        elif value is None:
-            judged = "within"
-        else:
-            judged = f"missed by {closed_forms.missed_by(row.quantity, value, row.unit)}"
-        cells = (
-            row.quantity,
-            row.unit,
-            _format_metric(row.measured),
-            _format_metric(row.expected),
-            allowed or "",
-            judged,
-        )
-        table.add_row(*map(Text, cells))
-    return table
 
 
 def _animated_runs(args, scene, console: Console) -> list[tuple[str, str]]:
@@ -350,7 +262,9 @@ def _cmd_bench(args, console: Console) -> None:
     with stage(console, "compiling the reference simulator"):
         warm_up(engines)
     table = in_child(bench, scenes, engines, args.dt, args.duration, args.repeats, console=console)
-    console.print(_throughput_console_table(table, "stepping throughput (steps/s, stepping only)"))
+    console.print(
+        console_tables.throughput_table(table, "stepping throughput (steps/s, stepping only)")
+    )
     closing = f"bench: {len(table)} rows in {time.perf_counter() - start:.1f} s"
     if out is not None:
         with atomic_path(out) as tmp:
@@ -460,32 +374,6 @@ def _gate_paths(args) -> list[Path]:
     return paths
 
 
-def _gate_console_table(checks) -> Table:
-    """The checks for the terminal, one row each (why a check has no measurement follows the
-    table, `_gate_reasons`)."""
-    from gates.output import format_margin, format_measured, result_word
-
-    shown = Table(title="gates")
-    for col in ("gate", "run", "measure", "measured", "limit", "margin", "result"):
-        right = col in ("measured", "margin")
-        shown.add_column(col, justify="right" if right else "left", overflow="fold")
-    for row in checks.itertuples():
-        dt = "all dt" if math.isnan(row.dt) else f"dt={row.dt:g}"
-        cells = [row.gate, f"{row.engine} {row.integrator} {dt}", row.measure]
-        cells += [format_measured(row.measured), row.limit, format_margin(row.margin)]
-        cells.append(result_word(row.passed))
-        shown.add_row(*map(Text, cells))  # Text: brackets in a name are no markup
-    return shown
-
-
-def _gate_reasons(checks) -> list[str]:
-    """One line per check that failed or was not checked for a reason: which, and why."""
-    from gates.output import failure_message, result_word
-
-    said = checks[checks["reason"] != ""]
-    return [f"{result_word(row.passed)}: {failure_message(row)}" for row in said.itertuples()]
-
-
 def _cmd_gate(args, console: Console) -> int:
     from gates.spec import load_gates
 
@@ -515,8 +403,8 @@ def _check_gates(args, console: Console, gates: list, junit: Path | None, start:
     )
     executor = LocalExecutor(args.jobs)
     checks = evaluate(gates, cache, args.engine, executor=executor, console=console)
-    console.print(_gate_console_table(checks))
-    for line in _gate_reasons(checks):
+    console.print(console_tables.gate_table(checks))
+    for line in console_tables.gate_reasons(checks):
         console.print(line, markup=False, soft_wrap=True)
     closing = closing_line(checks, time.perf_counter() - start)
     if junit is not None:

@@ -12,7 +12,8 @@ from rich.console import Console
 
 from cases import CATALOG, load_scene
 from comparators import COLUMNS, Trajectory
-from reports.cli import EXIT_BROKEN_PIPE, _outcomes_table, main
+from reports.cli import EXIT_BROKEN_PIPE, main
+from reports.console_tables import outcomes_table
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -213,7 +214,7 @@ def test_the_outcomes_table_says_by_how_much_a_run_missed():
         }
     )
     out = io.StringIO()
-    Console(file=out, width=200).print(_outcomes_table(said))
+    Console(file=out, width=200).print(outcomes_table(said))
     rows = [[c.strip() for c in line.split("│")[1:-1]] for line in out.getvalue().splitlines()]
     rows = [cells for cells in rows if len(cells) == 6]
     assert [cells[4:] for cells in rows] == [
