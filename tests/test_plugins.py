@@ -27,11 +27,30 @@ def test_built_in_engines_are_registered_through_entry_points():
     assert set(registry.ENGINES) == found
 
 
+ENGINE_PACKAGES = ("dartpy", "mujoco", "pybullet", "pydrake", "rapier3d", "sapien")
+
+
+def test_an_engine_is_loaded_only_when_asked_for():
+    """Every engine is listed by name at once, and loaded (its package imported) the first time
+    it is asked for: a command using the reference imports no other engine's package."""
+    code = (
+        "import sys\n"
+        "from comparators.engine import ENGINES, get_engine\n"
+        "names = set(ENGINES)\n"
+        "get_engine('reference').run\n"
+        f"print(sorted(names), [m for m in {ENGINE_PACKAGES!r} if m in sys.modules])\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().endswith(" []"), done.stdout
+    assert all(repr(name) in done.stdout for name in BUILT_IN), done.stdout
+
+
 @pytest.fixture
 def with_broken_plugins(monkeypatch):
     """The installed engines plus a plugin whose module is missing and one that calls itself by
     another name than its entry point's."""
-    monkeypatch.setattr(registry, "ENGINES", {})
+    monkeypatch.setattr(registry, "ENGINES", registry.Registry())
     monkeypatch.setattr("reports.cli.ENGINES", registry.ENGINES)
     group = registry.ENTRY_POINT_GROUP
     broken = [
@@ -65,7 +84,7 @@ def test_running_a_broken_plugin_is_a_clear_error_and_the_others_still_run(with_
 
 
 def test_without_any_entry_point_the_error_says_to_install(monkeypatch):
-    monkeypatch.setattr(registry, "ENGINES", {})
+    monkeypatch.setattr(registry, "ENGINES", registry.Registry())
     with pytest.raises(InputError, match="no engine is registered; install rigidbench"):
         registry.get_engine("reference")
 
