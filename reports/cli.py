@@ -163,7 +163,7 @@ def _cmd_run(args, console: Console) -> None:
     console.print(f"{scene.name}: {scene.modelled()}", markup=False)  # a title would wrap
     console.print(console_tables.metrics_table(summary))
     if not (said := outcomes(traj, scene)).empty:
-        console.print(console_tables.outcomes_table(said))
+        console.print(console_tables.outcomes_table(said, summary["verdict"]))
     if args.out:
         console.print(f"run: wrote {len(traj.table)} rows to {args.out}", markup=False)
 

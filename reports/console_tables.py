@@ -77,10 +77,13 @@ def throughput_table(table, title: str) -> Table:
     return shown
 
 
-def outcomes_table(said) -> Table:
+def outcomes_table(said, verdict: str = "ok") -> Table:
     """One run's outcomes (`comparators.outcomes`) against their closed forms, each judged by
-    the rule of the report's findings (`comparators.closed_forms`) where it has a tolerance."""
+    the rule of the report's findings (`comparators.closed_forms`) where it has a tolerance;
+    under a run whose verdict is not ok, a caption says the report judges only ok runs."""
     table = Table(title="outcomes against their closed forms")
+    if verdict != "ok":
+        table.caption = f"the run's verdict is {verdict}: the report's findings judge only ok runs"
     numbers = ("measured", "closed form", "tolerance")
     for header in ("quantity", "unit", *numbers, "judged"):
         table.add_column(header, justify="right" if header in numbers else "left")

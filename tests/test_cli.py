@@ -203,6 +203,13 @@ def test_run_judges_each_outcome_against_its_closed_form(capsys):
     assert rows["stopping_time"][3:] == ["0.6", "", ""]
 
 
+def test_the_outcomes_of_a_run_that_is_not_ok_say_the_report_does_not_judge_them(capsys):
+    """The seed's slide diverges: its outcomes are shown, with a caption under them."""
+    assert main(["run", "slide", "--integrator", "seed"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "the run's verdict is diverged: the report's findings judge only ok runs" in out
+
+
 def test_the_outcomes_table_says_by_how_much_a_run_missed():
     said = pd.DataFrame(
         {
