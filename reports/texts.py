@@ -34,8 +34,11 @@ SUMMARY_LEGEND = (
     "findings below say which and by how much). "
     "Where an engine's integrators differ, each verdict names its integrators. Most accurate at "
     "equal cost: the engine with the smallest orientation error at the most time budgets of "
-    "the case's work-precision plot (at how many, of how many); – where fewer than two "
-    "engines have valid runs with an error to compare (a case swept at one dt has none)."
+    "the case's work-precision plot (at how many, of how many); self-convergence where the "
+    "case has no exact motion and each engine's error is against its own run at the finest dt, "
+    "which ranks how little its runs change with dt, not how close they come to the physics; "
+    "– where fewer than two engines have valid runs with an error to compare (a case swept at "
+    "one dt has none)."
 )
 SUMMARY_OUTCOMES = (
     "How to read: per case, the closed-form outcome that says most about it, and what each "

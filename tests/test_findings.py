@@ -196,6 +196,30 @@ def test_the_summary_shows_verdicts_and_findings():
     assert "- **mujoco** Euler: diverged at the default dt ([bounce](#case-bounce))" in text
 
 
+def test_the_most_accurate_engine_says_when_its_errors_are_against_its_own_runs():
+    """mujoco's runs err a tenth of the reference's at equal cost on every case: it leads each
+    one, and where the case has no exact motion (bounce, slide) its lead is by
+    self-convergence."""
+    results, outcomes, fits = right_sweep()
+    finest = results["dt"] == results.groupby("case")["dt"].transform("min")
+    results = results.assign(
+        duration=1.0,
+        wall_s=np.where(finest, 1.0, 0.5),
+        orientation_error_deg=np.where(results["engine"] == "mujoco", 1.0, 10.0),
+    )
+    text = "\n".join(summary_section(_result(results, outcomes), fits))
+    leaders = {
+        line.split("]")[0][3:]: line.split("|")[-2].strip()
+        for line in text.split("### Verdicts")[0].splitlines()
+        if line.startswith("| [")
+    }
+    assert leaders == {
+        "tumbling_box": "mujoco (2 of 2)",
+        "bounce": "mujoco (2 of 2, self-convergence)",
+        "slide": "mujoco (2 of 2, self-convergence)",
+    }
+
+
 def test_the_summary_shows_a_run_off_its_closed_form():
     results, outcomes, fits = right_sweep()
     miss = 3 * RELATIVE_TOLERANCES["stopping_distance"]

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import pandas as pd
 
+from cases.exact import exact_trajectory_available
 from comparators.closed_forms import RUN_KEYS, is_miss, missed_by_run
 from comparators.engine import ENGINES
 from comparators.sweep import SweepResult
@@ -79,12 +80,20 @@ def verdict_table(result: SweepResult) -> pd.DataFrame:
         for engine in engines:
             mine = own[own["engine"] == engine]
             row[engine] = _verdict_cell(mine) if len(mine) else EMPTY_CELL
-        leader = front_leader(result.results[result.results["case"] == case])
-        row["most accurate at equal cost"] = (
-            EMPTY_CELL if leader is None else f"{leader[0]} ({leader[1]} of {leader[2]})"
-        )
+        row["most accurate at equal cost"] = _leader_cell(result, case)
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def _leader_cell(result: SweepResult, case: str) -> str:
+    """ "engine (budgets it leads at of budgets)" (`front_leader`), marked where the errors are
+    each engine's against its own finest dt (no exact motion): its runs' agreement with
+    themselves, not with the physics; EMPTY_CELL where there is no leader."""
+    leader = front_leader(result.results[result.results["case"] == case])
+    if leader is None:
+        return EMPTY_CELL
+    against = "" if exact_trajectory_available(result.scenes[case]) else ", self-convergence"
+    return f"{leader[0]} ({leader[1]} of {leader[2]}{against})"
 
 
 def _outcome_cell(row) -> str:
