@@ -7,8 +7,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 from rich.console import Console
-from rich.progress import Progress
-from rich.status import Status
+from rich.progress import Progress, SpinnerColumn, TaskID, TextColumn, TimeElapsedColumn
 
 # Lines a task prints where no terminal shows the bar: one each tenth of the way.
 LOGGED_STEPS = 10
@@ -55,23 +54,27 @@ class Stage:
     the spinner's text changes in place; in a file or a log each new text is printed as a
     line, since rich shows no spinner there."""
 
-    def __init__(self, console: Console, status: Status):
+    def __init__(self, console: Console, spinner: Progress, task: TaskID):
         self._console = console
-        self._status = status
+        self._spinner = spinner
+        self._task = task
 
     def update(self, text: str, logged: bool = True) -> None:
         """`logged=False`: the spinner alone, for updates too many for a log's lines."""
-        self._status.update(text)
+        self._spinner.update(self._task, description=text)
         if logged and not self._console.is_terminal:
-            self._console.print(text, markup=False)
+            self._console.print(text, markup=False, soft_wrap=True)
 
 
 @contextmanager
 def stage(console: Console, text: str) -> Iterator[Stage]:
-    """A spinner saying `text` on a terminal, for a long stage without steps to count (the
-    compile, a run, the scaling measurement); in a file or a log, `text` once as the stage
-    starts, and each update as a line."""
+    """A spinner saying `text` and the time since the stage began on a terminal, for a long
+    stage without steps to count (the compile, a run, the scaling measurement); in a file or
+    a log, `text` once as the stage starts, and each update as a line."""
     if not console.is_terminal:
-        console.print(text, markup=False)
-    with console.status(text, spinner="dots") as status:
-        yield Stage(console, status)
+        console.print(text, markup=False, soft_wrap=True)
+    columns = (SpinnerColumn(), TextColumn("{task.description}", markup=False), TimeElapsedColumn())
+    # off where no terminal shows it: rich would print an empty line as it stopped
+    off = not console.is_terminal
+    with Progress(*columns, console=console, transient=True, disable=off) as spinner:
+        yield Stage(console, spinner, spinner.add_task(text, total=None))

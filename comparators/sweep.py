@@ -18,6 +18,7 @@ import os
 import platform
 import time
 from concurrent.futures import as_completed
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,10 +43,11 @@ from comparators.interrupt import worker_pool
 from comparators.limits import check_run
 from comparators.metrics import pose_errors_between
 from comparators.outcomes import OUTCOME_COLUMNS, outcomes
-from comparators.progress import Bar
+from comparators.progress import Bar, stage
 from comparators.summary import summarize
 from comparators.timing import SWEEP_REPEATS, attempt_run, repeat_run, spread
 from comparators.trajectory import Trajectory, package_versions
+from reference_sim.compiled_cache import is_compiled
 from reference_sim.simulate import COMPILE_GROUPS, COMPILE_STAGES, compile_stage, compile_stages
 
 # One row per run. Errors are maxima over the run; drifts are relative (comparators.metrics).
@@ -243,14 +245,24 @@ def analyse(spec: RunSpec, traj: Trajectory) -> tuple[dict, pd.DataFrame]:
     return summarize(traj, spec.scene), run_outcomes(spec, traj)
 
 
-def warm_up(engines: list[str]) -> None:
-    """Compile the reference simulator before workers fork from this process: its
-    `COMPILE_GROUPS` in parallel processes (they write numba's cache), then load it all here."""
-    if "reference" in engines:
-        with worker_pool(len(COMPILE_GROUPS)) as pool:
-            list(pool.map(compile_stages, COMPILE_GROUPS))
-        for stage in COMPILE_STAGES:
-            compile_stage(stage)
+# The compile stage's texts: compiling where numba's cache lacks this version's code, else loading.
+COMPILING = "compiling the reference simulator (once per version of its code: about 2 minutes)"
+LOADING = "loading the compiled reference simulator"
+
+
+def warm_up(engines: list[str], console: Console | None = None) -> None:
+    """Compile the reference simulator before workers fork from this process, where `engines`
+    include it: its `COMPILE_GROUPS` in parallel processes where numba's cache lacks its code
+    (they write the cache), then load it all here; on `console`, a stage saying which."""
+    if "reference" not in engines:
+        return
+    compiled = is_compiled()
+    with stage(console, LOADING if compiled else COMPILING) if console else nullcontext():
+        if not compiled:
+            with worker_pool(len(COMPILE_GROUPS)) as pool:
+                list(pool.map(compile_stages, COMPILE_GROUPS))
+        for name in COMPILE_STAGES:
+            compile_stage(name)
             interrupt.check()  # loading compiled code defers Ctrl-C
 
 

@@ -266,8 +266,7 @@ def measure_groups(
         for g in runnable
     }
     engines = sorted({g.engine for g in runnable})
-    if "reference" in engines:
-        warm_up(["reference"])
+    warm_up(engines, console)
     once = _Once(executor or LocalExecutor(os.cpu_count() or 1))
     everything = list(dict.fromkeys(s for group in specs.values() for s in group))
     missing = [spec for spec in everything if not cache.has(_key(spec))]

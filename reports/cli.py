@@ -148,6 +148,7 @@ def _cmd_run(args, console: Console) -> None:
     dt = scene.dt if args.dt is None else args.dt
     _, integrator = check_engine(scene, args.engine, args.integrator)  # before the stage's line
     check_run(scene, dt, scene.duration if args.duration is None else args.duration)
+    _compile_first(console, [args.engine])
     with stage(console, f"running {scene.name} on {args.engine} {integrator}"):
         try:
             traj = in_child(run, scene, args.engine, integrator, args.dt, args.duration)
@@ -166,6 +167,18 @@ def _cmd_run(args, console: Console) -> None:
         console.print(console_tables.outcomes_table(said, summary["verdict"]))
     if args.out:
         console.print(f"run: wrote {len(traj.table)} rows to {args.out}", markup=False)
+
+
+def _compile_first(console: Console, engines: list[str]) -> None:
+    """Compile the reference simulator in parallel processes before a run that needs it, where
+    numba's cache lacks its code (`warm_up`); where cached, a run loads only what it uses."""
+    if "reference" not in engines:  # nor import the simulator
+        return
+    from comparators.sweep import warm_up
+    from reference_sim.compiled_cache import is_compiled
+
+    if not is_compiled():
+        warm_up(engines, console)
 
 
 def _animated_runs(args, scene, console: Console) -> list[tuple[str, str]]:
@@ -222,6 +235,7 @@ def _cmd_animate(args, console: Console) -> None:
     cache = ResultsCache(
         output_dir(args.cache, "--cache") if args.cache is not None else DEFAULT_OUT / "cache"
     )
+    _compile_first(console, [engine for engine, _ in pairs])
     runs = []
     with stage(console, f"running {scene.name}") as status:
         for engine, integrator in pairs:
@@ -259,8 +273,7 @@ def _cmd_bench(args, console: Console) -> None:
     plan_bench(scenes, engines, args.dt, args.duration, args.repeats)  # bad dt, duration, repeats
     _print_left_out(console, scenes, engines)
     start = time.perf_counter()
-    with stage(console, "compiling the reference simulator"):
-        warm_up(engines)
+    warm_up(engines, console)
     table = in_child(bench, scenes, engines, args.dt, args.duration, args.repeats, console=console)
     console.print(
         console_tables.throughput_table(table, "stepping throughput (steps/s, stepping only)")
@@ -329,8 +342,7 @@ def _cmd_report(args, console: Console) -> None:
     cache_dir = output_dir(args.cache, "--cache") if args.cache is not None else out / "cache"
     specs = plan(scenes, engines, quick=args.quick)  # a run over the limits: before compiling
     cache = ResultsCache(cache_dir)
-    with stage(console, "compiling the reference simulator"):
-        warm_up(engines)
+    warm_up(engines, console)
     lines = _print_left_out(console, scenes, engines)
     result = run_sweep(specs, cache, executor, left_out=lines, console=console)
     # scaling after the sweep: none of the sweep's workers competes for the cores

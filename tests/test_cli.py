@@ -12,6 +12,7 @@ from rich.console import Console
 
 from cases import CATALOG, load_scene
 from comparators import COLUMNS, Trajectory
+from comparators.sweep import LOADING
 from reports.cli import EXIT_BROKEN_PIPE, main
 from reports.console_tables import outcomes_table
 
@@ -157,7 +158,7 @@ def test_a_report_is_quiet_and_writes_only_its_folder(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr == ""
     stage, *progress, closing = proc.stdout.strip().splitlines()
-    assert stage == "compiling the reference simulator"  # piped: the stage's name, no spinner
+    assert stage == LOADING  # the session compiled it; piped: the stage's text, no spinner
     assert closing.startswith("report: rigidbench-report/ (open rigidbench-report/index.html); ")
     assert all("━" in line for line in progress), proc.stdout  # the bar's lines, nothing else
     for text in ("QACC", "WARNING", "warning", "unstable", "wrote"):

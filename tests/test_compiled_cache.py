@@ -3,15 +3,18 @@
 `rigidmath` included: an edit anywhere in them must never leave a stale compiled function. Old
 versions' directories are removed beyond the most recently used few, and nothing else is."""
 
+import io
 import os
 import shutil
 from pathlib import Path
 
 import pytest
+from rich.console import Console
 
 import reference_sim
+from comparators import sweep
 from reference_sim import COMPILED_PACKAGES, SOURCE_FILES, source_hash
-from reference_sim.compiled_cache import KEPT_VERSIONS, mark_or_prune
+from reference_sim.compiled_cache import KEPT_VERSIONS, is_compiled, mark_or_prune
 
 PACKAGE = Path(reference_sim.__file__).parent
 ROOT = PACKAGE.parent
@@ -79,3 +82,17 @@ def test_a_version_in_use_is_marked_and_removes_nothing(tmp_path):
     assert all(p.is_dir() for p in versions)
     newest = max(tmp_path.iterdir(), key=lambda p: p.stat().st_mtime)
     assert newest == oldest  # now the most recently used: kept when the next version comes
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_compile_stage_says_whether_it_compiles_or_loads(monkeypatch, compiled):
+    """The session compiled the simulator (conftest): `is_compiled` says so. Told it is not,
+    `warm_up` says it compiles, in parallel processes that find numba's cache filled."""
+    assert is_compiled()
+    monkeypatch.setattr(sweep, "is_compiled", lambda: compiled)
+    out = io.StringIO()
+    sweep.warm_up(["reference"], Console(file=out))
+    assert out.getvalue() == (sweep.LOADING if compiled else sweep.COMPILING) + "\n"
+    out = io.StringIO()
+    sweep.warm_up(["mujoco"], Console(file=out))
+    assert out.getvalue() == ""  # no reference, no stage
