@@ -6,6 +6,7 @@ import numpy as np
 
 from cases import Body, Contact, Scene
 from cases.builders import seed_cube_particles
+from comparators.reference import model_from_scene
 from reference_sim.model import rigid_initial_state
 from rigidmath.quaternion import quat_to_matrix
 
@@ -18,6 +19,12 @@ def initial_state(model, scene: Scene):
         [b.velocity for b in scene.bodies],
         [b.angular_velocity for b in scene.bodies],
     )
+
+
+def model_and_state(scene: Scene):
+    """The reference simulator's model of `scene` and its rigid state at t = 0."""
+    model = model_from_scene(scene)
+    return model, initial_state(model, scene)
 
 
 def head_on(restitution: float, contact: bool = True) -> Scene:
