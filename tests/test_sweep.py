@@ -3,6 +3,7 @@
 import dataclasses
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from cases import CATALOG
@@ -22,6 +23,7 @@ from comparators.sweep import (
     plan,
     run_sweep,
 )
+from gates.spec import RESULT_LABELS, RESULT_MEASURES
 
 SHORT = [
     dataclasses.replace(CATALOG["tumbling_box"], duration=1.0),
@@ -50,6 +52,10 @@ def test_one_row_per_run_and_values_where_defined(tmp_path):
     result = run_sweep(specs, ResultsCache(tmp_path), LocalExecutor(2), progress=False)
     df = result.results
     assert list(df.columns) == RESULT_COLUMNS
+    # a gate limits any column but the labels: each of those holds numbers
+    numeric = {c for c in df.columns if pd.api.types.is_numeric_dtype(df[c])}
+    assert set(RESULT_MEASURES) <= numeric and set(df.columns) - numeric <= set(RESULT_LABELS)
+    assert "energy_gain" in RESULT_MEASURES
     assert (
         len(df) == len(specs) == len({(s.scene.name, s.engine, s.integrator, s.dt) for s in specs})
     )
