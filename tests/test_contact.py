@@ -7,7 +7,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from scenes import head_on, initial_state
+from scenes import head_on, model_and_state
 
 from cases import CATALOG, Body, Contact, Plane, Scene
 from cases.builders import box_corners, floor
@@ -96,8 +96,7 @@ def test_gauss_seidel_ends_on_targets_no_rigid_motion_meets():
     more than MAX_ITERATIONS sweeps. The solve must end when the velocities stop, every corner
     within the disagreement of its target, and one more sweep must leave them as they are."""
     scene = CATALOG["resting_cube"]
-    model = model_from_scene(scene)
-    x, q, v, L = initial_state(model, scene)
+    model, (x, q, v, L) = model_and_state(scene)
     buf = buffers.contact_buffers(1, 16, 4, largest_body(model))
     frames.frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
     margin = settings.candidate_margin(scene.dt)
@@ -153,8 +152,7 @@ def test_a_contact_on_standby_wakes_when_the_solve_swings_its_body_into_it():
     rows += [(0.0, y, radius + 0.2 + lift / 2, 10.0) for y in (-0.1, 0.1)]  # out of reach
     rod = Body(name="rod", particle_radius=radius, particles=rows, velocity=(0.0, 0.0, -5.0))
     scene = _one_stopping_step("swung_rod", dt, (floor(0.0),), (rod,))
-    model = model_from_scene(scene)
-    x, q, v, L = initial_state(model, scene)
+    model, (x, q, v, L) = model_and_state(scene)
     buf = buffers.contact_buffers(1, 16, 4, largest_body(model))
     frames.frames_into(model, q, L, buf.rot, buf.inv, buf.omega)
     frames.reach_into(model, v, buf.omega, dt, (0.0, 0.0, 0.0), buf.reach)
@@ -191,8 +189,7 @@ def test_a_body_the_solve_speeds_beyond_its_candidates_reach_is_found_again():
     )
     wall_plane = Plane(point=(wall, 0.0, 0.0), normal=(-1.0, 0.0, 0.0))
     scene = _one_stopping_step("struck_into_a_wall", dt, (wall_plane,), (struck, striking))
-    model = model_from_scene(scene)
-    x, q, v, L = initial_state(model, scene)
+    model, (x, q, v, L) = model_and_state(scene)
     buf = buffers.contact_buffers(2, 64, 4, largest_body(model))
     assert rigid_step(model, INTEGRATOR_CODES["euler"], x, q, v, L, dt, 0.0, buf) == 0
     assert buf.solver[STAT_REFOUND] == 1

@@ -6,7 +6,7 @@ from typing import NamedTuple
 
 import numpy as np
 import pytest
-from scenes import initial_state
+from scenes import model_and_state
 
 from cases import CATALOG, resolve_case
 from comparators import run
@@ -55,8 +55,7 @@ def test_without_the_restart_the_flat_landing_cycles_and_turns(monkeypatch):
     its spin axis by more than SYMMETRY_TOLERANCE."""
     _python_solves(monkeypatch, RESTART_MAX_BODIES=0)
     scene, dt = CATALOG["dropped_cube"], 0.02
-    model = model_from_scene(scene)
-    x, q, v, L = initial_state(model, scene)
+    model, (x, q, v, L) = model_and_state(scene)
     buf = buffers.contact_buffers(1, 16, 4, largest_body(model))
     threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * dt
     w = []
@@ -132,8 +131,7 @@ class _RainStep(NamedTuple):
 def _first_rain_step_counting(counter, converged=False, scene=CATALOG["cube_rain_8"]):
     """The first step of `scene` (a `cube_rain_N`) in which the solver statistic `counter`
     grows (and, if `converged`, every solve converges)."""
-    model = model_from_scene(scene)
-    x, q, v, L = initial_state(model, scene)
+    model, (x, q, v, L) = model_and_state(scene)
     nb = len(scene.bodies)
     buf = buffers.contact_buffers(nb, 64 * nb, nb**2, largest_body(model))
     for _ in range(scene.steps(scene.dt, scene.duration)):
@@ -312,8 +310,7 @@ def test_a_trusted_rate_extrapolates_sooner_to_the_same_motion():
     state with no rate trusted: both converge, to the same velocities within
     SAME_MOTION_TOLERANCES solver tolerances, the trusting one in fewer sweeps."""
     scene = CATALOG["dropped_cube"]
-    model = model_from_scene(scene)
-    state = initial_state(model, scene)
+    model, state = model_and_state(scene)
     buf = buffers.contact_buffers(1, 64, 4, largest_body(model))
     threshold = BOUNCE_STEPS * np.linalg.norm(model.gravity) * scene.dt
     for _ in range(scene.steps(scene.dt, scene.duration)):
