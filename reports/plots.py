@@ -62,15 +62,31 @@ def _index(name: str, known: list[str]) -> int:
     return known.index(name) if name in known else len(known) + zlib.crc32(name.encode()) % 7
 
 
+def _marker_slots(engine: str) -> dict[str, int]:
+    """The marker slot of each of `engine`'s integrators: the one its name hashes to
+    (case-insensitive, so that MuJoCo's RK4 and the reference's rk4 share a marker), or where an
+    integrator of the engine listed before it holds that, the next free one: no two integrators
+    of an engine share a marker while it has no more than `MARKERS`. Only `engine` is loaded."""
+    slots: dict[str, int] = {}
+    for name in ENGINES[engine].integrators if engine in ENGINES else ():
+        slot = _name_slot(name)
+        while slot in slots.values() and len(slots) < len(MARKERS):
+            slot = (slot + 1) % len(MARKERS)
+        slots[name] = slot
+    return slots
+
+
+def _name_slot(integrator: str) -> int:
+    return zlib.crc32(integrator.lower().encode()) % len(MARKERS)
+
+
 def run_style(engine: str, integrator: str) -> dict:
     """matplotlib keyword arguments for one engine/integrator: colour by engine, marker and line
-    style by integrator (case-insensitive, so MuJoCo's RK4 and the reference's rk4 match)."""
-    engines = list(ENGINES)
-    integrators = list(dict.fromkeys(i.lower() for e in ENGINES.values() for i in e.integrators))
-    k = _index(integrator.lower(), integrators)
+    style by integrator (`_marker_slots`)."""
+    k = _marker_slots(engine).get(integrator, _name_slot(integrator))
     return {
-        "color": ENGINE_COLOURS[_index(engine, engines) % len(ENGINE_COLOURS)],
-        "marker": MARKERS[k % len(MARKERS)],
+        "color": ENGINE_COLOURS[_index(engine, list(ENGINES)) % len(ENGINE_COLOURS)],
+        "marker": MARKERS[k],
         "linestyle": LINESTYLES[k % len(LINESTYLES)],
     }
 

@@ -32,12 +32,15 @@ ENGINE_PACKAGES = ("dartpy", "mujoco", "pybullet", "pydrake", "rapier3d", "sapie
 
 def test_an_engine_is_loaded_only_when_asked_for():
     """Every engine is listed by name at once, and loaded (its package imported) the first time
-    it is asked for: a command using the reference imports no other engine's package."""
+    it is asked for: a command using the reference, and drawing its runs, imports no other
+    engine's package."""
     code = (
         "import sys\n"
         "from comparators.engine import ENGINES, get_engine\n"
         "names = set(ENGINES)\n"
+        "from reports.plots import run_style\n"
         "get_engine('reference').run\n"
+        "run_style('reference', 'euler')\n"
         f"print(sorted(names), [m for m in {ENGINE_PACKAGES!r} if m in sys.modules])\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)

@@ -31,6 +31,7 @@ from reports.convergence import (
     pareto_front,
 )
 from reports.html_page import missing_references
+from reports.plots import run_style
 from reports.report import expected_orders, write_report
 from reports.sections.case import pareto_sentence
 
@@ -282,6 +283,21 @@ def test_report_files(sweep, report):
     assert sorted(figures) == sorted(expected)
     assert all((out / name).stat().st_size > 10_000 for name in figures)
     assert not [p.name for p in out.iterdir() if p.name.startswith(".")], "temporary files left"
+
+
+def test_no_two_integrators_of_an_engine_look_alike():
+    """In every figure an engine is one colour: each of its integrators has a marker of its own
+    (physx `tgs` and `pgs`, the reference's `euler` and `exact` shared one), and an integrator's
+    marker is the same in every engine that has one of its name (MuJoCo's `RK4`, the
+    reference's `rk4`) unless another of that engine's holds it."""
+    for engine in ENGINES:
+        integrators = ENGINES[engine].integrators
+        markers = [run_style(engine, i)["marker"] for i in integrators]
+        assert len(set(markers)) == len(integrators), (engine, markers)
+        assert {run_style(engine, i)["color"] for i in integrators} == {
+            run_style(engine, "")["color"]
+        }
+    assert run_style("mujoco", "RK4")["marker"] == run_style("reference", "rk4")["marker"]
 
 
 def test_a_sliding_case_gets_the_path_on_its_plane(tmp_path):
