@@ -286,10 +286,10 @@ def test_report_files(sweep, report):
 
 
 def test_no_two_integrators_of_an_engine_look_alike():
-    """In every figure an engine is one colour: each of its integrators has a marker of its own
-    (physx `tgs` and `pgs`, the reference's `euler` and `exact` shared one), and an integrator's
-    marker is the same in every engine that has one of its name (MuJoCo's `RK4`, the
-    reference's `rk4`) unless another of that engine's holds it."""
+    """In every figure an engine is one colour, so each of its integrators needs a marker of its
+    own (in a scatter plot the marker is all that tells them apart); an integrator's name gets
+    the same marker in every engine that has it (MuJoCo's `RK4`, the reference's `rk4`) unless
+    another of that engine's holds it."""
     for engine in ENGINES:
         integrators = ENGINES[engine].integrators
         markers = [run_style(engine, i)["marker"] for i in integrators]
