@@ -62,6 +62,11 @@ def _index(name: str, known: list[str]) -> int:
     return known.index(name) if name in known else len(known) + zlib.crc32(name.encode()) % 7
 
 
+def _name_slot(integrator: str) -> int:
+    """The marker slot an integrator's name asks for, the same in every engine."""
+    return zlib.crc32(integrator.lower().encode()) % len(MARKERS)
+
+
 def _marker_slots(engine: str) -> dict[str, int]:
     """The marker slot of each of `engine`'s integrators: the one its name hashes to
     (case-insensitive, so that MuJoCo's RK4 and the reference's rk4 share a marker), or where an
@@ -74,10 +79,6 @@ def _marker_slots(engine: str) -> dict[str, int]:
             slot = (slot + 1) % len(MARKERS)
         slots[name] = slot
     return slots
-
-
-def _name_slot(integrator: str) -> int:
-    return zlib.crc32(integrator.lower().encode()) % len(MARKERS)
 
 
 def run_style(engine: str, integrator: str) -> dict:
