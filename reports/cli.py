@@ -200,22 +200,33 @@ def _animated_runs(args, scene, console: Console) -> list[tuple[str, str]]:
     return pairs
 
 
-def _cached_run(scene, engine: str, integrator: str, dt: float, duration: float, cache):
-    """One run through the results cache: a report's run of it (timed SWEEP_REPEATS times)
-    or an earlier single run where there is one, else run once now and stored as such.
-    Returns the `Trajectory`, or the reason the run failed."""
+def _cached_runs(scene, pairs, dt: float, duration: float, cache) -> list:
+    """Each (engine, integrator)'s run from the results cache: a report's run of it (timed
+    SWEEP_REPEATS times) or an earlier single run, else None. Looked up before anything is
+    compiled, so that an animation of cached runs compiles nothing."""
     from comparators.cache import run_key
-    from comparators.timing import SWEEP_REPEATS, attempt_run
+    from comparators.timing import SWEEP_REPEATS
 
-    keys = [run_key(scene, engine, integrator, dt, r, duration) for r in (SWEEP_REPEATS, 1)]
-    for key in keys:
-        traj = cache.get(key)
-        if traj is not None:
-            return traj
+    def cached(engine: str, integrator: str):
+        for repeats in (SWEEP_REPEATS, 1):
+            traj = cache.get(run_key(scene, engine, integrator, dt, repeats, duration))
+            if traj is not None:
+                return traj
+        return None
+
+    return [cached(engine, integrator) for engine, integrator in pairs]
+
+
+def _new_run(scene, engine: str, integrator: str, dt: float, duration: float, cache):
+    """Run once now and store it as a single run. Returns the `Trajectory`, or the reason
+    the run failed."""
+    from comparators.cache import run_key
+    from comparators.timing import attempt_run
+
     traj, error = in_child(attempt_run, scene, engine, integrator, dt, duration)
     if traj is None:
         return error
-    cache.put(keys[-1], traj)
+    cache.put(run_key(scene, engine, integrator, dt, 1, duration), traj)
     return traj
 
 
@@ -235,13 +246,15 @@ def _cmd_animate(args, console: Console) -> None:
     cache = ResultsCache(
         output_dir(args.cache, "--cache") if args.cache is not None else DEFAULT_OUT / "cache"
     )
-    _compile_first(console, [engine for engine, _ in pairs])
-    runs = []
+    trajs = _cached_runs(scene, pairs, dt, duration, cache)
+    missing = [pair for pair, traj in zip(pairs, trajs, strict=True) if traj is None]
+    _compile_first(console, [engine for engine, _ in missing])
     with stage(console, f"running {scene.name}") as status:
-        for engine, integrator in pairs:
-            status.update(f"running {scene.name} on {engine} {integrator}")
-            traj = _cached_run(scene, engine, integrator, dt, duration, cache)
-            runs.append((f"{engine}/{integrator}", traj))
+        for k, (engine, integrator) in enumerate(pairs):
+            if trajs[k] is None:
+                status.update(f"running {scene.name} on {engine} {integrator}")
+                trajs[k] = _new_run(scene, engine, integrator, dt, duration, cache)
+    runs = [(f"{e}/{i}", traj) for (e, i), traj in zip(pairs, trajs, strict=True)]
     for label, traj in runs:
         if isinstance(traj, str):
             console.print(f"{label} failed: {traj}", markup=False)

@@ -184,7 +184,7 @@ def _cells_with_body(frame: np.ndarray, columns: int, rows: int) -> list[bool]:
     return cells
 
 
-def test_animate_writes_one_panel_per_run_and_one_frame_per_sample(tmp_path):
+def test_animate_writes_one_panel_per_run_and_one_frame_per_sample(tmp_path, monkeypatch):
     integrators = ["splitting", "exact", "euler", "rk4"]
     out = tmp_path / "box.gif"
     proc = rigidbench(
@@ -201,6 +201,10 @@ def test_animate_writes_one_panel_per_run_and_one_frame_per_sample(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["box.gif", "cache"]
     stored = {p: p.stat().st_mtime_ns for p in (tmp_path / "cache").iterdir()}
     assert len(stored) == len(integrators)
+    # the same runs where numba's cache lacks the compiled code: taken from the results cache
+    # before anything is compiled, so nothing is
+    numba_cache = tmp_path / "numba"
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(numba_cache))
     again = rigidbench(
         "animate", "tumbling_box", "--engines", "reference", "--integrator", *integrators,
         "--duration", "1", "--out", str(tmp_path / "again.gif"), "--cache", str(tmp_path / "cache"),
@@ -209,6 +213,7 @@ def test_animate_writes_one_panel_per_run_and_one_frame_per_sample(tmp_path):
     assert again.returncode == 0, again.stderr
     # the runs came from the cache: no entry added or rewritten
     assert {p: p.stat().st_mtime_ns for p in (tmp_path / "cache").iterdir()} == stored
+    assert not [p for p in numba_cache.rglob("*") if p.is_file()]
     assert _frames(tmp_path / "again.gif")[-1].tolist() == frames[-1].tolist()
 
 
