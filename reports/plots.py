@@ -57,9 +57,17 @@ VERDICT_COLOURS = {
 }
 
 
-def _index(name: str, known: list[str]) -> int:
-    """Position of `name` in `known`; unknown names get a stable slot after the known ones."""
-    return known.index(name) if name in known else len(known) + zlib.crc32(name.encode()) % 7
+def _colour(engine: str) -> tuple:
+    """An engine's colour: registered engines in registry order; an engine the registry does
+    not list (runs cached by a plugin since removed) takes a stable colour among those the
+    registered ones leave free, where any are."""
+    known = list(ENGINES)
+    if engine in known:
+        slot = known.index(engine)
+    else:
+        crc, free = zlib.crc32(engine.encode()), len(ENGINE_COLOURS) - len(known)
+        slot = len(known) + crc % free if free > 0 else crc
+    return ENGINE_COLOURS[slot % len(ENGINE_COLOURS)]
 
 
 def _name_slot(integrator: str) -> int:
@@ -86,7 +94,7 @@ def run_style(engine: str, integrator: str) -> dict:
     style by integrator (`_marker_slots`)."""
     k = _marker_slots(engine).get(integrator, _name_slot(integrator))
     return {
-        "color": ENGINE_COLOURS[_index(engine, list(ENGINES)) % len(ENGINE_COLOURS)],
+        "color": _colour(engine),
         "marker": MARKERS[k],
         "linestyle": LINESTYLES[k % len(LINESTYLES)],
     }

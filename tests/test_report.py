@@ -300,6 +300,15 @@ def test_no_two_integrators_of_an_engine_look_alike():
     assert run_style("mujoco", "RK4")["marker"] == run_style("reference", "rk4")["marker"]
 
 
+def test_an_unlisted_engine_has_a_colour_no_listed_engine_has():
+    """Runs cached by a plugin since removed still get drawn: in a colour of their own while
+    the palette has colours the registered engines leave free."""
+    listed = {run_style(engine, "")["color"] for engine in ENGINES}
+    assert len(listed) == len(ENGINES)
+    for name in ("removed_plugin", "warp", "genesis", "brax", "isaac"):
+        assert run_style(name, "")["color"] not in listed, name
+
+
 def test_a_sliding_case_gets_the_path_on_its_plane(tmp_path):
     """A case that states a slide's closed form (`slide_oblique`) gets the path figure, in its
     section with its how-to-read; tumbling_box above does not (`test_report_files`)."""
