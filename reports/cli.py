@@ -249,11 +249,12 @@ def _cmd_animate(args, console: Console) -> None:
     trajs = _cached_runs(scene, pairs, dt, duration, cache)
     missing = [pair for pair, traj in zip(pairs, trajs, strict=True) if traj is None]
     _compile_first(console, [engine for engine, _ in missing])
-    with stage(console, f"running {scene.name}") as status:
-        for k, (engine, integrator) in enumerate(pairs):
-            if trajs[k] is None:
-                status.update(f"running {scene.name} on {engine} {integrator}")
-                trajs[k] = _new_run(scene, engine, integrator, dt, duration, cache)
+    if missing:  # no "running" line where every run is cached
+        with stage(console, f"running {scene.name}") as status:
+            for k, (engine, integrator) in enumerate(pairs):
+                if trajs[k] is None:
+                    status.update(f"running {scene.name} on {engine} {integrator}")
+                    trajs[k] = _new_run(scene, engine, integrator, dt, duration, cache)
     runs = [(f"{e}/{i}", traj) for (e, i), traj in zip(pairs, trajs, strict=True)]
     for label, traj in runs:
         if isinstance(traj, str):

@@ -211,6 +211,7 @@ def test_animate_writes_one_panel_per_run_and_one_frame_per_sample(tmp_path, mon
         cwd=tmp_path,
     )  # fmt: skip
     assert again.returncode == 0, again.stderr
+    assert "running" not in again.stdout  # nothing to run, and the output says so
     # the runs came from the cache: no entry added or rewritten
     assert {p: p.stat().st_mtime_ns for p in (tmp_path / "cache").iterdir()} == stored
     assert not [p for p in numba_cache.rglob("*") if p.is_file()]
